@@ -1,0 +1,225 @@
+//! NeRF-synthetic / Blender scenes (`transforms_{train,val,test}.json`), including our
+//! Mitsuba-rendered synthetic scenes with ground truth.
+//!
+//! * Cameras: `transform_matrix` is the camera-to-world matrix (rows, OpenGL frame).
+//!   Intrinsics: `fl_x` (and `fl_y`, `cx`, `cy`, defaulting to `fl_x` and the image
+//!   centre) for an image of `w x h` (default: the image's size), scaled to the loaded
+//!   image size; otherwise `camera_angle_x` with a centred principal point.
+//! * Frames: `file_path` relative to the scene root, a leading `./` allowed, with or
+//!   without extension (`.png`, `.jpg`, `.jpeg` are tried). RGBA images are composited
+//!   over [`LoadOptions::background`] and `Scene::background` is set to it.
+//! * Ground truth (optional per-frame keys): `depth_path` (EXR, channel `Y`, ray
+//!   distance), `normal_path` (EXR, `R`,`G`,`B` = world normal), `mask_path` (8-bit
+//!   grayscale PNG, 255 = object). Without `mask_path`, the alpha channel (if any) is the
+//!   view's mask. All must match the image size.
+//! * Scene: `near`/`far` from the top-level keys, else NeRF-synthetic's 2 / 6. `aabb`
+//!   (`[[minx, miny, minz], [maxx, maxy, maxz]]`) from the top-level key, else
+//!   `[-1.5, 1.5]^3` when the file has no `near`/`far` either (NeRF-synthetic), else a
+//!   cube centred at the origin with half-size `mean camera distance - near` (or
+//!   `(far - near) / 2` when the cameras are closer than `near`).
+//! * Split: train = `transforms_train.json`, or `k` of its frames at
+//!   `round(linspace(0, n_train - 1, k))`; test = `transforms_test.json`
+//!   (`transforms_val.json` only when there is no test file). `Scene::views` holds the
+//!   selected training frames (in that order) followed by the test frames; unselected
+//!   training frames are not loaded.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Mat4, Vec3};
+use serde::Deserialize;
+
+use super::image_io::{SizeGuard, file_stem, load_depth_exr, load_normal_exr, read_view_image, read_view_mask};
+use super::split::{Split, subset_split};
+use super::{Camera, DataError, LoadOptions, Scene, SceneFormat, View};
+
+/// NeRF-synthetic's near / far.
+const DEFAULT_NEAR_FAR: (f32, f32) = (2.0, 6.0);
+/// NeRF-synthetic's scene box half-size.
+const DEFAULT_HALF_EXTENT: f32 = 1.5;
+const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "PNG", "JPG"];
+
+#[derive(Deserialize)]
+struct Transforms {
+    camera_angle_x: Option<f32>,
+    fl_x: Option<f32>,
+    fl_y: Option<f32>,
+    cx: Option<f32>,
+    cy: Option<f32>,
+    w: Option<f32>,
+    h: Option<f32>,
+    near: Option<f32>,
+    far: Option<f32>,
+    aabb: Option<[[f32; 3]; 2]>,
+    frames: Vec<Frame>,
+}
+
+#[derive(Deserialize)]
+struct Frame {
+    file_path: String,
+    transform_matrix: [[f32; 4]; 4],
+    depth_path: Option<String>,
+    normal_path: Option<String>,
+    mask_path: Option<String>,
+}
+
+fn read_transforms(path: &Path) -> Result<Transforms, DataError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    serde_json::from_str(&text).map_err(|source| DataError::Json { path: path.to_path_buf(), source })
+}
+
+/// `rel` (optionally starting with `./`) under `root`.
+fn resolve(root: &Path, rel: &str) -> PathBuf {
+    let mut rel = rel;
+    while let Some(r) = rel.strip_prefix("./") {
+        rel = r;
+    }
+    root.join(rel)
+}
+
+/// The image of a frame: `file_path` as given, or with an image extension appended.
+fn find_image(root: &Path, file_path: &str) -> Option<PathBuf> {
+    let base = resolve(root, file_path);
+    if base.is_file() {
+        return Some(base);
+    }
+    IMAGE_EXTENSIONS.iter().map(|ext| PathBuf::from(format!("{}.{ext}", base.display()))).find(|p| p.is_file())
+}
+
+impl Transforms {
+    /// The camera of a `width x height` image with pose `c2w`.
+    fn camera(&self, json: &Path, width: u32, height: u32, c2w: Mat4) -> Result<Camera, DataError> {
+        let (w, h) = (width as f32, height as f32);
+        if let Some(fl_x) = self.fl_x {
+            let (w0, h0) = (self.w.unwrap_or(w), self.h.unwrap_or(h));
+            let (sx, sy) = (w / w0, h / h0);
+            return Ok(Camera {
+                width,
+                height,
+                fx: fl_x * sx,
+                fy: self.fl_y.unwrap_or(fl_x) * sy,
+                cx: self.cx.unwrap_or(0.5 * w0) * sx,
+                cy: self.cy.unwrap_or(0.5 * h0) * sy,
+                c2w,
+            });
+        }
+        match self.camera_angle_x {
+            Some(angle) => Ok(Camera::from_fov_x(width, height, angle, c2w)),
+            None => Err(DataError::invalid(json, "no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h")),
+        }
+    }
+}
+
+/// Per-scene state shared by the frames being loaded.
+struct Loader<'a> {
+    root: &'a Path,
+    opts: &'a LoadOptions,
+    guard: SizeGuard,
+    any_alpha: bool,
+}
+
+impl Loader<'_> {
+    fn frame(&mut self, json: &Path, t: &Transforms, i: usize) -> Result<View, DataError> {
+        let frame = &t.frames[i];
+        let what = || format!("frame {i} ('{}') of {}", frame.file_path, json.display());
+        let path = find_image(self.root, &frame.file_path)
+            .ok_or_else(|| DataError::MissingImage { path: resolve(self.root, &frame.file_path), pose: what() })?;
+        let c2w = Mat4::from_cols_array_2d(&frame.transform_matrix).transpose();
+        if !c2w.is_finite() {
+            return Err(DataError::NonFinite { path: json.to_path_buf(), what: format!("transform_matrix of {}", what()) });
+        }
+        let img = read_view_image(&path, self.opts.load_images, self.opts.background, &mut self.guard)?;
+        let size = (img.info.width, img.info.height);
+        self.any_alpha |= img.info.has_alpha;
+        let camera = t.camera(json, size.0, size.1, c2w)?;
+        if !camera.is_finite() {
+            return Err(DataError::NonFinite { path: json.to_path_buf(), what: format!("intrinsics of {}", what()) });
+        }
+        let mut view =
+            View { name: file_stem(&path), path, camera, image: img.image, mask: img.alpha, depth: None, normal: None };
+        if !self.opts.load_images {
+            return Ok(view);
+        }
+        let mismatch = |gt: &Path, got: (u32, u32), image: &Path| DataError::SizeMismatch {
+            path: gt.to_path_buf(),
+            reference: image.to_path_buf(),
+            got,
+            expected: size,
+        };
+        if let Some(rel) = &frame.mask_path {
+            view.mask = Some(read_view_mask(&resolve(self.root, rel), &view.path, size)?);
+        }
+        if let Some(rel) = &frame.depth_path {
+            let p = resolve(self.root, rel);
+            let (w, h, depth) = load_depth_exr(&p)?;
+            if (w, h) != size {
+                return Err(mismatch(&p, (w, h), &view.path));
+            }
+            view.depth = Some(depth);
+        }
+        if let Some(rel) = &frame.normal_path {
+            let p = resolve(self.root, rel);
+            let (w, h, normal) = load_normal_exr(&p)?;
+            if (w, h) != size {
+                return Err(mismatch(&p, (w, h), &view.path));
+            }
+            view.normal = Some(normal);
+        }
+        Ok(view)
+    }
+}
+
+pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
+    let train_json = root.join("transforms_train.json");
+    let train = read_transforms(&train_json)?;
+    let test_json = ["transforms_test.json", "transforms_val.json"].map(|f| root.join(f)).into_iter().find(|p| p.is_file());
+    let test = test_json.as_deref().map(read_transforms).transpose()?;
+    if train.frames.is_empty() {
+        return Err(DataError::invalid(&train_json, "the file lists no frames; add at least one training frame"));
+    }
+
+    let selected = subset_split(train.frames.len(), opts.views).map_err(|m| DataError::invalid(&train_json, m))?;
+    let mut loader = Loader { root, opts, guard: SizeGuard::default(), any_alpha: false };
+    let mut views = Vec::new();
+    for &i in &selected {
+        views.push(loader.frame(&train_json, &train, i)?);
+    }
+    let n_train = views.len();
+    if let (Some(json), Some(test)) = (&test_json, &test) {
+        for i in 0..test.frames.len() {
+            views.push(loader.frame(json, test, i)?);
+        }
+    }
+    let split = Split { train: (0..n_train).collect(), test: (n_train..views.len()).collect() };
+
+    let near = train.near.unwrap_or(DEFAULT_NEAR_FAR.0);
+    let far = train.far.unwrap_or(DEFAULT_NEAR_FAR.1);
+    if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {
+        return Err(DataError::invalid(&train_json, format!("near {near} / far {far}: need 0 <= near < far")));
+    }
+    let aabb = match train.aabb {
+        Some([lo, hi]) => [Vec3::from(lo), Vec3::from(hi)],
+        None if train.near.is_none() && train.far.is_none() => {
+            [Vec3::splat(-DEFAULT_HALF_EXTENT), Vec3::splat(DEFAULT_HALF_EXTENT)]
+        }
+        None => {
+            let n = n_train.max(1) as f32;
+            let mean_dist = views[..n_train].iter().map(|v| v.camera.origin().length()).sum::<f32>() / n;
+            let half = if mean_dist > near { mean_dist - near } else { 0.5 * (far - near) };
+            [Vec3::splat(-half), Vec3::splat(half)]
+        }
+    };
+    if !(aabb[0].is_finite() && aabb[1].is_finite() && aabb[0].cmplt(aabb[1]).all()) {
+        return Err(DataError::invalid(&train_json, "aabb must be [[minx, miny, minz], [maxx, maxy, maxz]] with min < max"));
+    }
+    Ok(Scene {
+        root: root.to_path_buf(),
+        format: SceneFormat::Blender,
+        views,
+        split,
+        near,
+        far,
+        ndc: None,
+        aabb,
+        background: loader.any_alpha.then_some(opts.background),
+    })
+}

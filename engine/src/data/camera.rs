@@ -1,0 +1,247 @@
+//! Pinhole cameras, world-space rays, and NeRF's NDC mapping for forward-facing scenes.
+//!
+//! Conventions are those of the parent module ([`crate::data`]): OpenGL camera frame
+//! (look down `-z`, `+y` up), pixel origin at the top-left image corner with `y` down,
+//! pixel centres at `+0.5`. [`Camera::c2w`] is a `glam::Mat4` whose upper 3x3 is a
+//! rotation (orthonormal up to the rounding of the source data) and whose last column is
+//! the camera centre; it is never scaled, so world units are the scene's units.
+//!
+//! Invariants: [`Camera::pixel_ray`] returns a unit direction and `z_scale` in `(0, 1]`;
+//! [`Camera::project`] is its inverse (a point at distance `t` along the ray of pixel `p`
+//! projects back to `p` with z-depth `t * z_scale`).
+
+use glam::{Mat4, Vec2, Vec3, Vec4Swizzles};
+
+/// A ray. World-space rays have a unit `dir` and `t` is the distance from the origin;
+/// NDC rays (see [`NdcParams::ray_to_ndc`]) keep NeRF's non-unit direction so that
+/// `t` in `[0, 1]` spans the near plane to infinity.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Ray {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    /// World rays: cosine between `dir` and the camera's optical axis, so that the
+    /// z-depth of the point at `t` is `t * z_scale`. NDC rays: `1` (`t` is the NDC depth).
+    pub z_scale: f32,
+}
+
+impl Ray {
+    /// The point at parameter `t`.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+}
+
+/// A pinhole camera without distortion (principal point and focal lengths in pixels).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Camera {
+    pub width: u32,
+    pub height: u32,
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    /// Camera-to-world transform (OpenGL camera frame), rigid.
+    pub c2w: Mat4,
+}
+
+impl Camera {
+    /// A camera with the principal point at the image centre and a horizontal field of
+    /// view of `angle_x` radians (NeRF-synthetic's `camera_angle_x`; square pixels).
+    pub fn from_fov_x(width: u32, height: u32, angle_x: f32, c2w: Mat4) -> Camera {
+        let f = 0.5 * width as f32 / (0.5 * angle_x).tan();
+        Camera { width, height, fx: f, fy: f, cx: 0.5 * width as f32, cy: 0.5 * height as f32, c2w }
+    }
+
+    /// The same camera for an image resized to `width x height`: intrinsics scale with
+    /// the size ratio per axis (pixel-corner origin, so no half-pixel shift).
+    pub fn resized(&self, width: u32, height: u32) -> Camera {
+        let sx = width as f32 / self.width as f32;
+        let sy = height as f32 / self.height as f32;
+        Camera { width, height, fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, c2w: self.c2w }
+    }
+
+    /// Camera centre in world space.
+    pub fn origin(&self) -> Vec3 {
+        self.c2w.w_axis.xyz()
+    }
+
+    /// Unit optical axis (the camera's `-z`) in world space.
+    pub fn forward(&self) -> Vec3 {
+        (-self.c2w.z_axis.xyz()).normalize()
+    }
+
+    /// World-to-camera transform (the inverse of `c2w`).
+    pub fn w2c(&self) -> Mat4 {
+        self.c2w.inverse()
+    }
+
+    /// Whether all intrinsics and the pose are finite.
+    pub fn is_finite(&self) -> bool {
+        [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite()) && self.c2w.is_finite()
+    }
+
+    /// Camera-space direction (not normalised, `z = -1`) through image point `(px, py)`.
+    fn camera_dir(&self, px: f32, py: f32) -> Vec3 {
+        Vec3::new((px - self.cx) / self.fx, -(py - self.cy) / self.fy, -1.0)
+    }
+
+    /// The world-space ray through image point `(px, py)` (continuous pixel coordinates:
+    /// pass `x + 0.5, y + 0.5` for the centre of pixel `(x, y)`).
+    pub fn pixel_ray(&self, px: f32, py: f32) -> Ray {
+        let d = self.c2w.transform_vector3(self.camera_dir(px, py)).normalize();
+        Ray { origin: self.origin(), dir: d, z_scale: d.dot(self.forward()) }
+    }
+
+    /// Rays through the centres of all pixels, row-major.
+    pub fn pixel_rays(&self) -> Vec<Ray> {
+        let mut rays = Vec::with_capacity(self.width as usize * self.height as usize);
+        for y in 0..self.height {
+            for x in 0..self.width {
+                rays.push(self.pixel_ray(x as f32 + 0.5, y as f32 + 0.5));
+            }
+        }
+        rays
+    }
+
+    /// Projects a world point into the image: continuous pixel coordinates and z-depth
+    /// (distance along the optical axis). `None` for points at or behind the camera
+    /// plane. The pixel may lie outside the image; see [`Camera::in_frame`].
+    pub fn project(&self, p: Vec3) -> Option<(Vec2, f32)> {
+        self.project_with(&self.w2c(), p)
+    }
+
+    /// [`Camera::project`] with a precomputed [`Camera::w2c`] (for many points).
+    pub fn project_with(&self, w2c: &Mat4, p: Vec3) -> Option<(Vec2, f32)> {
+        let q = w2c.transform_point3(p);
+        let z = -q.z;
+        if z <= 0.0 || !z.is_finite() {
+            return None;
+        }
+        Some((Vec2::new(self.cx + self.fx * q.x / z, self.cy - self.fy * q.y / z), z))
+    }
+
+    /// Whether continuous pixel coordinates lie inside the image.
+    pub fn in_frame(&self, px: Vec2) -> bool {
+        px.x >= 0.0 && px.y >= 0.0 && px.x < self.width as f32 && px.y < self.height as f32
+    }
+}
+
+/// NeRF's normalised device coordinates for forward-facing scenes (`ndc_rays`): world
+/// space with the cameras looking down `-z` maps to the cube `[-1, 1]^3`, the plane
+/// `z = -near` to NDC `z = -1` and infinity to NDC `z = 1`. One shared pinhole
+/// (`focal_*`, `width`, `height` in pixels of the loaded images) defines the frustum.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NdcParams {
+    pub focal_x: f32,
+    pub focal_y: f32,
+    pub width: f32,
+    pub height: f32,
+    /// World distance of the near plane along `-z` (1.0 for LLFF after rescaling).
+    pub near: f32,
+}
+
+impl NdcParams {
+    /// Maps a world-space ray to NDC exactly as NeRF's `ndc_rays`: the origin is first
+    /// moved along the ray to the plane `z = -near`, then both origin and direction are
+    /// projected. The result has NDC origin `z = -1`, direction `z = 2 near / near = 2`
+    /// (so NDC `z = 2t - 1`), and `t` in `[0, 1]` covers the near plane to infinity.
+    /// The direction is *not* unit length; `z_scale` is `1`. Rays with `dir.z >= 0`
+    /// (pointing away from the scene) give non-finite values.
+    pub fn ray_to_ndc(&self, ray: Ray) -> Ray {
+        let (o, d) = (ray.origin, ray.dir);
+        let t = -(self.near + o.z) / d.z;
+        let o = o + d * t;
+        let ax = -2.0 * self.focal_x / self.width;
+        let ay = -2.0 * self.focal_y / self.height;
+        let origin = Vec3::new(ax * o.x / o.z, ay * o.y / o.z, 1.0 + 2.0 * self.near / o.z);
+        let dir = Vec3::new(
+            ax * (d.x / d.z - o.x / o.z),
+            ay * (d.y / d.z - o.y / o.z),
+            -2.0 * self.near / o.z,
+        );
+        Ray { origin, dir, z_scale: 1.0 }
+    }
+
+    /// Maps a world point (in front of the near plane, `z < 0`) to NDC.
+    pub fn point_to_ndc(&self, p: Vec3) -> Vec3 {
+        Vec3::new(
+            -2.0 * self.focal_x / self.width * p.x / p.z,
+            -2.0 * self.focal_y / self.height * p.y / p.z,
+            1.0 + 2.0 * self.near / p.z,
+        )
+    }
+
+    /// World depth `-z` of the point at NDC ray parameter `t` (inverse of NDC
+    /// `z = 2t - 1 = 1 + 2 near / z`): `near / (1 - t)`.
+    pub fn ndc_t_to_world_depth(&self, t: f32) -> f32 {
+        self.near / (1.0 - t)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Quat, Vec3};
+
+    fn test_camera() -> Camera {
+        let rot = Quat::from_euler(glam::EulerRot::YXZ, 0.4, -0.3, 0.1);
+        let c2w = Mat4::from_rotation_translation(rot, Vec3::new(0.5, -1.0, 3.0));
+        Camera { width: 64, height: 48, fx: 70.0, fy: 72.0, cx: 31.0, cy: 25.0, c2w }
+    }
+
+    #[test]
+    fn pixel_ray_and_project_round_trip() {
+        let cam = test_camera();
+        for &(px, py) in &[(0.5, 0.5), (31.0, 25.0), (63.5, 47.5), (10.25, 40.75)] {
+            let ray = cam.pixel_ray(px, py);
+            assert!((ray.dir.length() - 1.0).abs() < 1e-5);
+            assert!(ray.z_scale > 0.0 && ray.z_scale <= 1.0 + 1e-6);
+            let t = 2.7;
+            let (p, z) = cam.project(ray.at(t)).unwrap();
+            assert!((p - Vec2::new(px, py)).length() < 1e-3, "{p} vs {px},{py}");
+            assert!((z - t * ray.z_scale).abs() < 1e-4);
+        }
+        // The principal point looks straight down the optical axis.
+        let axis = cam.pixel_ray(31.0, 25.0);
+        assert!((axis.dir - cam.forward()).length() < 1e-6 && (axis.z_scale - 1.0).abs() < 1e-6);
+        // Points behind the camera do not project.
+        assert!(cam.project(cam.origin() - cam.forward()).is_none());
+    }
+
+    #[test]
+    fn opengl_frame_orientation() {
+        // Identity pose: a pixel right of / above the centre looks to +x / +y, forward is -z.
+        let cam = Camera { c2w: Mat4::IDENTITY, ..test_camera() };
+        let r = cam.pixel_ray(60.0, 25.0);
+        assert!(r.dir.x > 0.0 && r.dir.z < 0.0);
+        let u = cam.pixel_ray(31.0, 2.0);
+        assert!(u.dir.y > 0.0);
+        let f = Camera::from_fov_x(800, 600, std::f32::consts::FRAC_PI_2, Mat4::IDENTITY);
+        assert!((f.fx - 400.0).abs() < 1e-3 && f.cx == 400.0 && f.cy == 300.0);
+        let h = f.resized(400, 300);
+        assert!((h.fx - 200.0).abs() < 1e-3 && h.cy == 150.0);
+    }
+
+    #[test]
+    fn ndc_of_known_rays() {
+        let ndc = NdcParams { focal_x: 100.0, focal_y: 100.0, width: 200.0, height: 100.0, near: 1.0 };
+        // The optical axis ray from the origin: NDC origin (0, 0, -1), direction (0, 0, 2).
+        let r = ndc.ray_to_ndc(Ray { origin: Vec3::ZERO, dir: -Vec3::Z, z_scale: 1.0 });
+        assert!((r.origin - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
+        assert!((r.dir - Vec3::new(0.0, 0.0, 2.0)).length() < 1e-6);
+        // A ray through a corner-ish direction (x/z = -1 means the right image border
+        // when 2f/W = 1): NDC x goes to 1 at t = 1 (infinity).
+        let dir = Vec3::new(1.0, 0.5, -1.0).normalize();
+        let r = ndc.ray_to_ndc(Ray { origin: Vec3::new(0.2, -0.1, 0.5), dir, z_scale: 1.0 });
+        assert!((r.origin.z + 1.0).abs() < 1e-6 && (r.dir.z - 2.0).abs() < 1e-6);
+        let far = r.at(1.0);
+        // At infinity the NDC xy of a ray is its direction's projection: -(2f/W) dx/dz.
+        assert!((far.x - 1.0).abs() < 1e-5 && (far.y - 1.0).abs() < 1e-5 && (far.z - 1.0).abs() < 1e-5, "{far}");
+        // Intermediate points agree with the point mapping (NDC is a projective map).
+        let world = Ray { origin: Vec3::new(0.2, -0.1, 0.5), dir, z_scale: 1.0 }.at(4.0);
+        let p = ndc.point_to_ndc(world);
+        let t = (p.z + 1.0) / 2.0;
+        assert!((r.at(t) - p).length() < 1e-4, "{} vs {p}", r.at(t));
+        assert!((ndc.ndc_t_to_world_depth(t) + world.z).abs() < 1e-3);
+    }
+}

@@ -1,0 +1,308 @@
+//! DTU scans, in the IDR layout (`cameras_sphere.npz`) and the pixelNeRF/RegNeRF layout
+//! (`cameras.npz`); both share this code.
+//!
+//! * Cameras: `world_mat_i` (the 3x4 or 4x4 projection `K [R | t]` of view `i`) and the
+//!   optional `scale_mat_i` (maps the normalised frame to DTU's world). The projection
+//!   of the normalised frame is `P = world_mat @ scale_mat`; its left 3x3 is split by an
+//!   RQ decomposition into `K` (upper triangular, positive diagonal, `K[2][2] = 1`) and a
+//!   rotation `R`, and the camera centre is `-M^-1 p4` (as `cv2.decomposeProjectionMatrix`
+//!   in IDR's `load_K_Rt_from_P`). The OpenCV camera (x right, y down, z forward) is
+//!   turned into our OpenGL frame by flipping its `y` and `z` axes. World frame = the
+//!   normalised frame (no extra world flip), where the object lies in the unit sphere.
+//! * Resolution: DTU's `K` refers to the full-resolution images (1600x1200) even when
+//!   the shipped images are smaller. The downsampling factor is
+//!   `round(2 cx / width)` (the principal point is near the centre of the full image),
+//!   required to agree with `round(2 cy / height)`; `fx, fy, cx, cy` are divided by it
+//!   (as RegNeRF: no half-pixel shift).
+//! * Images: `image/*.{png,jpg}` sorted by name (or, without `image/`, the `rect_*`
+//!   files of the scan folder, lighting 3 `*_3_r5000*` when present); view `i` is the
+//!   `i`-th image and uses `world_mat_i`. Masks: `mask/*` sorted by name, matched by
+//!   position (IDR names them `000.png` while images are `000000.png`), values in
+//!   `[0, 1]` in [`View::mask`].
+//! * Near/far: pixelNeRF layout: RegNeRF's `0.5 / 3.5`. IDR layout (unit-sphere
+//!   normalisation, object within radius 1): `near = max(min_i |C_i| - 1, 0.1 min_i |C_i|)`
+//!   and `far = max_i |C_i| + 1` from the camera-centre distances `|C_i|` to the origin.
+//!   `aabb` is `[-1, 1]^3` for both.
+//! * Split: [`dtu_split`] (pixelNeRF ids; view id = image index).
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DMat4, DVec3, DVec4, Vec3};
+
+use super::image_io::{SizeGuard, file_stem, list_images, read_view_image, read_view_mask};
+use super::npy::{NpyArray, Npz};
+use super::split::dtu_split;
+use super::{Camera, DataError, LoadOptions, Scene, SceneFormat, View};
+
+/// RegNeRF's DTU near/far after pixelNeRF's normalisation.
+const PIXELNERF_NEAR_FAR: (f32, f32) = (0.5, 3.5);
+
+/// A decomposed projection matrix `P = K [R | -R C]` (OpenCV camera frame).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Decomposed {
+    /// Intrinsics, upper triangular, positive diagonal, `k[2][2] = 1` (`K.col(c).row(r)`).
+    pub k: DMat3,
+    /// World-to-camera rotation (proper: `det = +1`).
+    pub r: DMat3,
+    /// Camera centre in world coordinates.
+    pub center: DVec3,
+}
+
+/// Splits the 3x4 projection `p` (rows) into intrinsics, rotation and centre by an RQ
+/// decomposition of its left 3x3 block (Gram-Schmidt from the last row up). The overall
+/// sign of `p` is fixed so that `det(M) > 0`, which makes `R` a proper rotation and
+/// points in front of the camera have positive depth. `None` if `p` is degenerate.
+pub(crate) fn decompose_projection(p: [[f64; 4]; 3]) -> Option<Decomposed> {
+    let row = |r: usize| DVec3::new(p[r][0], p[r][1], p[r][2]);
+    let (mut m1, mut m2, mut m3) = (row(0), row(1), row(2));
+    let mut p4 = DVec3::new(p[0][3], p[1][3], p[2][3]);
+    let det = DMat3::from_cols(m1, m2, m3).determinant();
+    if !det.is_finite() || det.abs() < 1e-300 {
+        return None;
+    }
+    if det < 0.0 {
+        (m1, m2, m3, p4) = (-m1, -m2, -m3, -p4);
+    }
+    let k33 = m3.length();
+    let r3 = m3 / k33;
+    let k23 = m2.dot(r3);
+    let v2 = m2 - k23 * r3;
+    let k22 = v2.length();
+    let r2 = v2 / k22;
+    let (k13, k12) = (m1.dot(r3), m1.dot(r2));
+    let v1 = m1 - k12 * r2 - k13 * r3;
+    let k11 = v1.length();
+    let r1 = v1 / k11;
+    // glam matrices are column-major: build the transposes of the row layouts.
+    let k = DMat3::from_cols(
+        DVec3::new(k11, 0.0, 0.0),
+        DVec3::new(k12, k22, 0.0),
+        DVec3::new(k13, k23, k33),
+    ) / k33;
+    let r = DMat3::from_cols(r1, r2, r3).transpose();
+    let m = DMat3::from_cols(m1, m2, m3).transpose();
+    let center = -(m.inverse() * p4);
+    let ok = k.is_finite() && r.is_finite() && center.is_finite() && k11 > 0.0 && k22 > 0.0;
+    ok.then_some(Decomposed { k, r, center })
+}
+
+/// Reads array `name` of shape `4x4` (or `3x4`, completed with `[0, 0, 0, 1]`).
+fn matrix4(npz: &Npz, name: &str, a: &NpyArray) -> Result<DMat4, DataError> {
+    let rows = a.shape.first().copied().unwrap_or(0);
+    if !(a.shape.len() == 2 && a.shape[1] == 4 && (rows == 3 || rows == 4)) {
+        a.expect_shape(npz.path(), name, &[Some(4), Some(4)])?;
+    }
+    check_finite(npz.path(), name, a)?;
+    let r = |i: usize| {
+        if i < rows { DVec4::from_slice(&a.data[i * 4..i * 4 + 4]) } else { DVec4::new(0.0, 0.0, 0.0, 1.0) }
+    };
+    Ok(DMat4::from_cols(r(0), r(1), r(2), r(3)).transpose())
+}
+
+fn check_finite(path: &Path, name: &str, a: &NpyArray) -> Result<(), DataError> {
+    if a.data.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(DataError::NonFinite { path: path.to_path_buf(), what: format!("{name} contains NaN or infinite values") })
+    }
+}
+
+/// The OpenGL camera of view `i` at full resolution (intrinsics not yet scaled).
+fn full_res_camera(npz: &Npz, i: usize) -> Result<(Decomposed, glam::Mat4), DataError> {
+    let world_name = format!("world_mat_{i}");
+    let world = matrix4(npz, &world_name, npz.require(&world_name)?)?;
+    let scale_name = format!("scale_mat_{i}");
+    let scale = match npz.get(&scale_name) {
+        Some(a) => matrix4(npz, &scale_name, a)?,
+        None => DMat4::IDENTITY,
+    };
+    let p = world * scale;
+    let rows = [0, 1, 2].map(|r| p.row(r).to_array());
+    let d = decompose_projection(rows).ok_or_else(|| DataError::NonFinite {
+        path: npz.path().to_path_buf(),
+        what: format!("{world_name} @ scale_mat_{i} is not a valid projection matrix (singular)"),
+    })?;
+    // Camera-to-world in OpenCV axes is [R^T | C]; flip the camera's y and z for OpenGL.
+    let rt = d.r.transpose();
+    let c2w = DMat4::from_cols(
+        rt.x_axis.extend(0.0),
+        (-rt.y_axis).extend(0.0),
+        (-rt.z_axis).extend(0.0),
+        d.center.extend(1.0),
+    );
+    Ok((d, c2w.as_mat4()))
+}
+
+/// Image files of a scan: `image/`, or the `rect_*` files of the scan folder.
+fn scan_images(root: &Path) -> Result<(PathBuf, Vec<PathBuf>), DataError> {
+    let dir = root.join("image");
+    if dir.is_dir() {
+        let files = list_images(&dir, "DTU image folder")?;
+        return Ok((dir, files));
+    }
+    let rect: Vec<PathBuf> = list_images(root, "DTU scan folder")?
+        .into_iter()
+        .filter(|p| file_stem(p).starts_with("rect_"))
+        .collect();
+    if rect.is_empty() {
+        return Err(DataError::NotFound { path: dir, what: "DTU image folder (image/ or rect_* files)" });
+    }
+    let lit: Vec<PathBuf> = rect.iter().filter(|p| file_stem(p).contains("_3_r5000")).cloned().collect();
+    Ok((root.to_path_buf(), if lit.is_empty() { rect } else { lit }))
+}
+
+/// Number of `world_mat_i` arrays (ids `0..n` must all be present).
+fn camera_count(npz: &Npz) -> usize {
+    npz.names().filter(|n| n.strip_prefix("world_mat_").is_some_and(|i| i.parse::<usize>().is_ok())).count()
+}
+
+pub(super) fn load(root: &Path, format: SceneFormat, opts: &LoadOptions) -> Result<Scene, DataError> {
+    let npz_name = if format == SceneFormat::DtuIdr { "cameras_sphere.npz" } else { "cameras.npz" };
+    let npz = Npz::read(&root.join(npz_name))?;
+    let (image_dir, images) = scan_images(root)?;
+    let n = camera_count(&npz);
+    if images.len() != n {
+        return Err(DataError::CountMismatch { path: image_dir, images: images.len(), cameras: n });
+    }
+    let mask_dir = root.join("mask");
+    let masks = if opts.load_images && mask_dir.is_dir() {
+        let masks = list_images(&mask_dir, "DTU mask folder")?;
+        if masks.len() != n {
+            return Err(DataError::invalid(
+                &mask_dir,
+                format!("{} masks for {n} images; provide one mask per image (matched in name order) or remove the folder", masks.len()),
+            ));
+        }
+        Some(masks)
+    } else {
+        None
+    };
+
+    let mut guard = SizeGuard::default();
+    let mut views = Vec::with_capacity(n);
+    for (i, path) in images.iter().enumerate() {
+        let (d, c2w) = full_res_camera(&npz, i)?;
+        let img = read_view_image(path, opts.load_images, [0.0; 3], &mut guard)?;
+        let (w, h) = (img.info.width, img.info.height);
+        let (cx, cy) = (d.k.z_axis.x, d.k.z_axis.y);
+        let factor = (2.0 * cx / w as f64).round();
+        if factor < 1.0 || factor != (2.0 * cy / h as f64).round() {
+            return Err(DataError::invalid(
+                path,
+                format!(
+                    "cannot relate the {w}x{h} image to the intrinsics of {npz_name} (principal point \
+                     {cx:.1}, {cy:.1}): expected the image to be the full-resolution one downsampled by \
+                     an integer factor"
+                ),
+            ));
+        }
+        let camera = Camera {
+            width: w,
+            height: h,
+            fx: (d.k.x_axis.x / factor) as f32,
+            fy: (d.k.y_axis.y / factor) as f32,
+            cx: (cx / factor) as f32,
+            cy: (cy / factor) as f32,
+            c2w,
+        };
+        if !camera.is_finite() {
+            return Err(DataError::NonFinite { path: npz.path().to_path_buf(), what: format!("camera {i}") });
+        }
+        let mask = match &masks {
+            Some(masks) => Some(read_view_mask(&masks[i], path, (w, h))?),
+            None => None,
+        };
+        views.push(View {
+            name: file_stem(path),
+            path: path.clone(),
+            camera,
+            image: img.image,
+            mask,
+            depth: None,
+            normal: None,
+        });
+    }
+
+    let (near, far) = match format {
+        SceneFormat::DtuIdr => unit_sphere_near_far(views.iter().map(|v| v.camera.origin())),
+        _ => PIXELNERF_NEAR_FAR,
+    };
+    let split = dtu_split(n, opts.views).map_err(|m| DataError::invalid(root, m))?;
+    Ok(Scene {
+        root: root.to_path_buf(),
+        format,
+        views,
+        split,
+        near,
+        far,
+        ndc: None,
+        aabb: [Vec3::splat(-1.0), Vec3::splat(1.0)],
+        background: None,
+    })
+}
+
+/// Near/far that enclose the unit sphere from every camera centre.
+fn unit_sphere_near_far(centers: impl Iterator<Item = Vec3>) -> (f32, f32) {
+    let (lo, hi) = centers.map(Vec3::length).fold((f32::INFINITY, 0.0f32), |(lo, hi), d| (lo.min(d), hi.max(d)));
+    ((lo - 1.0).max(0.1 * lo), hi + 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rq_recovers_k_r_t() {
+        let k = DMat3::from_cols(
+            DVec3::new(2890.0, 0.0, 0.0),
+            DVec3::new(1.5, 2880.0, 0.0),
+            DVec3::new(823.2, 619.1, 1.0),
+        );
+        let r = DMat3::from_euler(glam::EulerRot::XYZ, 0.3, -1.1, 2.4);
+        let center = DVec3::new(0.4, -1.2, 2.5);
+        let t = -(r * center);
+        for scale in [3.7, -0.02] {
+            // P = s K [R | t], rows.
+            let kr = k * r;
+            let kt = k * t;
+            let p = [0, 1, 2].map(|i| {
+                let row = kr.row(i);
+                [row.x * scale, row.y * scale, row.z * scale, kt[i] * scale]
+            });
+            let d = decompose_projection(p).unwrap();
+            assert!((d.k - k).abs_diff_eq(DMat3::ZERO, 1e-6), "{:?}", d.k);
+            assert!(d.r.abs_diff_eq(r, 1e-9), "{:?} vs {r:?}", d.r);
+            assert!(d.center.abs_diff_eq(center, 1e-9));
+        }
+        assert!(decompose_projection([[0.0; 4]; 3]).is_none());
+    }
+
+    #[test]
+    fn opencv_to_opengl_projection_agrees() {
+        // A point projected by P (OpenCV) and by our camera (OpenGL) lands on the same pixel.
+        let r = DMat3::from_euler(glam::EulerRot::XYZ, -0.2, 0.5, 0.1);
+        let center = DVec3::new(0.3, 0.2, -2.8);
+        let k = DMat3::from_cols(DVec3::new(300.0, 0.0, 0.0), DVec3::new(0.0, 310.0, 0.0), DVec3::new(200.0, 150.0, 1.0));
+        let (kr, kt) = (k * r, k * -(r * center));
+        let p = [0, 1, 2].map(|i| {
+            let row = kr.row(i);
+            [row.x, row.y, row.z, kt[i]]
+        });
+        let mut npz_like = DMat4::IDENTITY;
+        for (i, row) in p.iter().enumerate() {
+            npz_like.x_axis[i] = row[0];
+            npz_like.y_axis[i] = row[1];
+            npz_like.z_axis[i] = row[2];
+            npz_like.w_axis[i] = row[3];
+        }
+        let d = decompose_projection(p).unwrap();
+        let rt = d.r.transpose();
+        let c2w = DMat4::from_cols(rt.x_axis.extend(0.0), (-rt.y_axis).extend(0.0), (-rt.z_axis).extend(0.0), d.center.extend(1.0));
+        let cam = Camera { width: 400, height: 300, fx: 300.0, fy: 310.0, cx: 200.0, cy: 150.0, c2w: c2w.as_mat4() };
+        let x = DVec3::new(0.1, -0.3, 0.2);
+        let q = npz_like * x.extend(1.0);
+        let (px, z) = cam.project(x.as_vec3()).unwrap();
+        assert!((px.x as f64 - q.x / q.z).abs() < 1e-3 && (px.y as f64 - q.y / q.z).abs() < 1e-3);
+        assert!((z as f64 - q.z).abs() < 1e-4);
+    }
+}

@@ -1,0 +1,180 @@
+//! LLFF forward-facing scenes: `poses_bounds.npy` + `images_{factor}/`, NeRF/RegNeRF style.
+//!
+//! Processing, in order (all in `f64`, as NeRF's `load_llff_data` with `recenter=True`,
+//! `bd_factor=0.75`, no spherify):
+//! 1. `poses_bounds.npy` is `N x 17`: a row-major `3 x 5` matrix `[R | t | (h, w, f)]`
+//!    per image, then the near and far scene bounds.
+//! 2. Axis fix from LLFF's `[down, right, back]` camera axes to `[right, up, back]`
+//!    (OpenGL): columns `(c0, c1, c2)` become `(c1, -c0, c2)`.
+//! 3. Rescale so the closest bound sits at 1/0.75: `sc = 1 / (min bound * 0.75)`
+//!    multiplies every camera position (and the bounds).
+//! 4. Recentre: the average pose (mean centre, summed `z` and `up` axes
+//!    re-orthonormalised) is inverted and applied to every pose.
+//! 5. Focal length `f` is scaled by the ratio of the loaded image size to the `(h, w)`
+//!    stored in the file (per axis); the principal point is the image centre.
+//!
+//! Rays are NDC rays ([`NdcParams`] with `near = 1.0`): the scene's `near`/`far` are
+//! `0`/`1` and its `aabb` is the NDC cube `[-1, 1]^3`. Images are the image files of
+//! `images_{factor}` (`images` for factor 1) sorted by name, one per pose in order.
+//! Split: [`llff_split`].
+
+use std::path::Path;
+
+use glam::{DMat4, DVec3, Vec3};
+
+use super::image_io::{SizeGuard, file_stem, list_images, read_view_image};
+use super::npy::read_npy;
+use super::{Camera, DataError, LoadOptions, NdcParams, Scene, SceneFormat, View, llff_split};
+
+/// NeRF's `bd_factor`: the closest scene bound ends up at `1 / BD_FACTOR`.
+const BD_FACTOR: f64 = 0.75;
+/// World distance of the NDC near plane after rescaling.
+const NDC_NEAR: f32 = 1.0;
+
+/// The image folder for a downsampling factor.
+pub(crate) fn image_dir_name(factor: u32) -> String {
+    if factor <= 1 { "images".to_string() } else { format!("images_{factor}") }
+}
+
+/// One pose from `poses_bounds.npy`, after the axis fix.
+struct RawPose {
+    c2w: DMat4,
+    /// Original image height, width and focal length in pixels.
+    hwf: [f64; 3],
+    bounds: [f64; 2],
+}
+
+fn parse_row(row: &[f64]) -> RawPose {
+    let m = |r: usize, c: usize| row[r * 5 + c];
+    let col = |c: usize| DVec3::new(m(0, c), m(1, c), m(2, c));
+    // [down, right, back] -> [right, up, back].
+    let (x, y, z) = (col(1), -col(0), col(2));
+    RawPose {
+        c2w: DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), col(3).extend(1.0)),
+        hwf: [m(0, 4), m(1, 4), m(2, 4)],
+        bounds: [row[15], row[16]],
+    }
+}
+
+/// NeRF's `poses_avg`: mean centre, axes from the summed `z` and `up` vectors.
+fn average_pose(poses: &[DMat4]) -> DMat4 {
+    let n = poses.len() as f64;
+    let center = poses.iter().map(|p| p.w_axis.truncate()).sum::<DVec3>() / n;
+    let z = poses.iter().map(|p| p.z_axis.truncate()).sum::<DVec3>().normalize();
+    let up = poses.iter().map(|p| p.y_axis.truncate()).sum::<DVec3>();
+    let x = up.cross(z).normalize();
+    let y = z.cross(x).normalize();
+    DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), center.extend(1.0))
+}
+
+pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
+    let poses_path = root.join("poses_bounds.npy");
+    let array = read_npy(&poses_path)?;
+    array.expect_shape(&poses_path, "poses_bounds", &[None, Some(17)])?;
+    let n = array.shape[0];
+    if n == 0 {
+        return Err(DataError::invalid(&poses_path, "the file holds no poses (shape (0, 17))"));
+    }
+    let mut raw = Vec::with_capacity(n);
+    for i in 0..n {
+        let row = array.row(i);
+        if let Some(j) = row.iter().position(|v| !v.is_finite()) {
+            return Err(DataError::NonFinite {
+                path: poses_path.clone(),
+                what: format!("row {i} (pose of image {i}) has value {} at column {j}", row[j]),
+            });
+        }
+        let pose = parse_row(row);
+        if pose.bounds[0] <= 0.0 || pose.hwf.iter().any(|&v| v <= 0.0) {
+            return Err(DataError::invalid(
+                &poses_path,
+                format!("row {i} has a non-positive near bound, image size or focal length; regenerate it with LLFF's imgs2poses"),
+            ));
+        }
+        raw.push(pose);
+    }
+
+    let image_dir = root.join(image_dir_name(opts.llff_factor));
+    let files = list_images(&image_dir, "LLFF image folder (images_N for LoadOptions::llff_factor N)")?;
+    if files.len() != n {
+        return Err(DataError::CountMismatch { path: image_dir, images: files.len(), cameras: n });
+    }
+
+    // Rescale and recentre the poses.
+    let min_bound = raw.iter().map(|p| p.bounds[0]).fold(f64::INFINITY, f64::min);
+    let sc = 1.0 / (min_bound * BD_FACTOR);
+    let mut poses: Vec<DMat4> = raw
+        .iter()
+        .map(|p| {
+            let mut c2w = p.c2w;
+            c2w.w_axis = (c2w.w_axis.truncate() * sc).extend(1.0);
+            c2w
+        })
+        .collect();
+    let inv_avg = average_pose(&poses).inverse();
+    for pose in &mut poses {
+        *pose = inv_avg * *pose;
+    }
+
+    let mut guard = SizeGuard::default();
+    let mut views = Vec::with_capacity(n);
+    for (i, (path, pose)) in files.iter().zip(&poses).enumerate() {
+        let img = read_view_image(path, opts.load_images, [0.0; 3], &mut guard)?;
+        let (w, h) = (img.info.width, img.info.height);
+        let [h0, w0, f] = raw[i].hwf;
+        let (sx, sy) = (w as f64 / w0, h as f64 / h0);
+        if (sx / sy - 1.0).abs() > 0.02 {
+            return Err(DataError::invalid(
+                path,
+                format!(
+                    "image is {w}x{h} but poses_bounds.npy row {i} describes a {w0}x{h0} image \
+                     (different aspect ratio); the images do not belong to these poses"
+                ),
+            ));
+        }
+        let camera = Camera {
+            width: w,
+            height: h,
+            fx: (f * sx) as f32,
+            fy: (f * sy) as f32,
+            cx: 0.5 * w as f32,
+            cy: 0.5 * h as f32,
+            c2w: pose.as_mat4(),
+        };
+        if !camera.is_finite() {
+            return Err(DataError::NonFinite {
+                path: poses_path.clone(),
+                what: format!("pose {i} became degenerate after recentring"),
+            });
+        }
+        views.push(View {
+            name: file_stem(path),
+            path: path.clone(),
+            camera,
+            image: img.image,
+            mask: None,
+            depth: None,
+            normal: None,
+        });
+    }
+
+    let split = llff_split(n, opts.views).map_err(|m| DataError::invalid(root, m))?;
+    let c0 = views[0].camera;
+    Ok(Scene {
+        root: root.to_path_buf(),
+        format: SceneFormat::Llff,
+        views,
+        split,
+        near: 0.0,
+        far: 1.0,
+        ndc: Some(NdcParams {
+            focal_x: c0.fx,
+            focal_y: c0.fy,
+            width: c0.width as f32,
+            height: c0.height as f32,
+            near: NDC_NEAR,
+        }),
+        aabb: [Vec3::splat(-1.0), Vec3::splat(1.0)],
+        background: None,
+    })
+}

@@ -1,0 +1,198 @@
+//! Scenes: images, cameras, optional ground truth, and the train/test split.
+//!
+//! Owns the one [`Scene`] type every format loads into, the camera model and ray
+//! generation ([`camera`]), and the format readers (`blender`, `llff`, `dtu`, plus the
+//! NumPy readers they share). Nothing here touches the GPU.
+//!
+//! # Conventions (stated once, used everywhere)
+//! * **Camera frame**: OpenGL / NeRF. The camera looks down its local `-z`, `+x` is
+//!   right and `+y` is up. `Camera::c2w` maps camera to world. Loaders of OpenCV-style
+//!   data (DTU) flip `y` and `z` on load so everything downstream sees one convention.
+//! * **Pixels**: `(x, y)` with `x` to the right, `y` down, origin at the top-left
+//!   corner of the image; the pixel centre is at `(x + 0.5, y + 0.5)` (mip-NeRF /
+//!   RegNeRF convention).
+//! * **Rays**: world-space origin and *unit* direction; a ray parameter `t` is the
+//!   Euclidean distance from the camera centre. `Ray::z_scale` converts it to depth
+//!   along the camera axis: `z = t * z_scale`.
+//! * **Ground-truth depth** (synthetic scenes): ray distance `t` in world units, as
+//!   Mitsuba's `aov` integrator writes it; `0` on pixels that hit nothing.
+//! * **Ground-truth normals**: world space, unit length, oriented toward the camera;
+//!   `(0, 0, 0)` where nothing was hit.
+//! * **Forward-facing scenes** (LLFF) additionally carry [`NdcParams`]; rays are
+//!   generated in world space and mapped to NDC by [`NdcParams::ray_to_ndc`]
+//!   (NeRF's `ndc_rays`), where near/far become 0/1. NDC rays keep NeRF's *non-unit*
+//!   direction (so `t` in `[0, 1]` spans the near plane to infinity, NDC `z = 2t - 1`)
+//!   and have `z_scale = 1`.
+//! * **Intrinsics** are in pixels of the *loaded* images (loaders rescale them when the
+//!   camera file describes another resolution); no lens distortion.
+//!
+//! # Invariants
+//! * Every view of a scene has the same image size; loaders enforce it.
+//! * `Scene::split.train` and `Scene::split.test` are disjoint indices into `views`.
+//! * Images are linear-in-file (sRGB-encoded as stored, no conversion), RGB, `f32` in
+//!   `[0, 1]`, row-major, `3` floats per pixel.
+
+pub mod camera;
+mod error;
+mod image_io;
+pub mod npy;
+mod split;
+
+mod blender;
+mod dtu;
+mod llff;
+
+use std::path::{Path, PathBuf};
+
+pub use camera::{Camera, NdcParams, Ray};
+pub use error::DataError;
+pub use image_io::{
+    ImageInfo, ImageRgb, image_info, load_depth_exr, load_mask, load_normal_exr, save_depth_exr,
+    save_normal_exr,
+};
+pub use split::{DTU_EXCLUDED_VIEWS, DTU_TRAIN_VIEWS, LLFF_HOLD, Split, dtu_split, linspace_indices, llff_split};
+
+/// Which reader produced a scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum SceneFormat {
+    /// NeRF-synthetic / Blender `transforms_*.json`, including our Mitsuba scenes.
+    Blender,
+    /// LLFF `poses_bounds.npy` + `images_N/` (forward-facing, NDC rays).
+    Llff,
+    /// DTU in the IDR layout (`cameras_sphere.npz`, `image/`, `mask/`).
+    DtuIdr,
+    /// DTU in the pixelNeRF / RegNeRF layout (`cameras.npz`, `image/`, `mask/`).
+    DtuPixelNerf,
+}
+
+impl std::fmt::Display for SceneFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SceneFormat::Blender => "blender (transforms_*.json)",
+            SceneFormat::Llff => "llff (poses_bounds.npy)",
+            SceneFormat::DtuIdr => "dtu (IDR layout, cameras_sphere.npz)",
+            SceneFormat::DtuPixelNerf => "dtu (pixelNeRF layout, cameras.npz)",
+        })
+    }
+}
+
+/// How to load a scene.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct LoadOptions {
+    /// Number of training views `k` for the sparse-view split (RegNeRF protocol);
+    /// `None` means every non-test view is a training view.
+    pub views: Option<usize>,
+    /// Background colour that RGBA images are composited over (Blender format).
+    pub background: [f32; 3],
+    /// LLFF: which `images_N` folder to read (8 gives 504x378 for LLFF scenes).
+    pub llff_factor: u32,
+    /// Load the image pixels. `false` reads only cameras and sizes (fast `info`).
+    pub load_images: bool,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: 8, load_images: true }
+    }
+}
+
+/// One image of a scene with its camera and optional ground truth.
+#[derive(Clone, Debug)]
+pub struct View {
+    /// File stem of the image (`r_0`, `image006`, ...): the key external edge maps use.
+    pub name: String,
+    /// Path of the image file.
+    pub path: PathBuf,
+    pub camera: Camera,
+    /// RGB pixels; empty (`width * height == 0` data) when loaded without images.
+    pub image: ImageRgb,
+    /// Object / valid mask in `[0, 1]`, one value per pixel (DTU masks, synthetic GT).
+    pub mask: Option<Vec<f32>>,
+    /// Ground-truth ray distance per pixel (0 = no surface).
+    pub depth: Option<Vec<f32>>,
+    /// Ground-truth world-space unit normal per pixel, toward the camera.
+    pub normal: Option<Vec<[f32; 3]>>,
+}
+
+/// A loaded scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub root: PathBuf,
+    pub format: SceneFormat,
+    pub views: Vec<View>,
+    pub split: Split,
+    /// Near and far ray distances (world units), or 0/1 in NDC for LLFF.
+    pub near: f32,
+    pub far: f32,
+    /// Present for forward-facing scenes whose rays are mapped to NDC.
+    pub ndc: Option<NdcParams>,
+    /// Axis-aligned box (world units, or NDC cube for LLFF) that holds the content;
+    /// the field's grid is laid over it.
+    pub aabb: [glam::Vec3; 2],
+    /// Background colour for rays that hit nothing (RGBA data), if the format has one.
+    pub background: Option<[f32; 3]>,
+}
+
+impl Scene {
+    /// Detects the format of `root` and loads it.
+    pub fn load(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, DataError> {
+        let root = root.as_ref();
+        match detect_format(root)? {
+            SceneFormat::Blender => blender::load(root, opts),
+            SceneFormat::Llff => llff::load(root, opts),
+            f @ (SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf) => dtu::load(root, f, opts),
+        }
+    }
+
+    /// Image size shared by every view.
+    pub fn image_size(&self) -> (u32, u32) {
+        self.views.first().map_or((0, 0), |v| (v.camera.width, v.camera.height))
+    }
+
+    /// Indices of the training views.
+    pub fn train_views(&self) -> impl Iterator<Item = &View> {
+        self.split.train.iter().map(|&i| &self.views[i])
+    }
+
+    /// Indices of the test views.
+    pub fn test_views(&self) -> impl Iterator<Item = &View> {
+        self.split.test.iter().map(|&i| &self.views[i])
+    }
+
+    /// The ray through the centre of pixel `(x, y)` of view `view`, in the space the
+    /// field works in: world space, or NDC for forward-facing scenes.
+    pub fn ray(&self, view: usize, x: u32, y: u32) -> Ray {
+        let ray = self.views[view].camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+        match &self.ndc {
+            Some(ndc) => ndc.ray_to_ndc(ray),
+            None => ray,
+        }
+    }
+
+    /// [`Scene::ray`] for every pixel of view `view`, row-major.
+    pub fn image_rays(&self, view: usize) -> Vec<Ray> {
+        let rays = self.views[view].camera.pixel_rays();
+        match &self.ndc {
+            Some(ndc) => rays.into_iter().map(|r| ndc.ray_to_ndc(r)).collect(),
+            None => rays,
+        }
+    }
+}
+
+/// Finds which reader understands `root`.
+pub fn detect_format(root: &Path) -> Result<SceneFormat, DataError> {
+    if !root.is_dir() {
+        return Err(DataError::NotFound { path: root.to_path_buf(), what: "scene directory" });
+    }
+    if root.join("transforms_train.json").is_file() {
+        Ok(SceneFormat::Blender)
+    } else if root.join("poses_bounds.npy").is_file() {
+        Ok(SceneFormat::Llff)
+    } else if root.join("cameras_sphere.npz").is_file() {
+        Ok(SceneFormat::DtuIdr)
+    } else if root.join("cameras.npz").is_file() {
+        Ok(SceneFormat::DtuPixelNerf)
+    } else {
+        Err(DataError::UnknownFormat { path: root.to_path_buf() })
+    }
+}

@@ -1,0 +1,341 @@
+//! NumPy `.npy` and `.npz` files: a small reader (plus a writer for tests and tools).
+//!
+//! Supported: format versions 1, 2 and 3; C-order arrays of little-endian (or native on
+//! little-endian hosts) `f4`, `f8`, `i4`, `i8`; `.npz` archives (stored or deflated)
+//! through the `zip` crate. Everything else (Fortran order, big-endian data, other
+//! dtypes, truncated data) is a clear error, never a guess.
+//!
+//! Invariant: an [`NpyArray`] holds exactly `shape.iter().product()` values, converted
+//! to `f64` in C (row-major) order; the original dtype is kept in [`NpyArray::dtype`].
+
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use super::DataError;
+
+const MAGIC: &[u8] = b"\x93NUMPY";
+
+/// Element type of an array as stored in the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DType {
+    F4,
+    F8,
+    I4,
+    I8,
+}
+
+impl DType {
+    fn size(self) -> usize {
+        match self {
+            DType::F4 | DType::I4 => 4,
+            DType::F8 | DType::I8 => 8,
+        }
+    }
+}
+
+/// A dense array read from a `.npy` file, values converted to `f64`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NpyArray {
+    pub shape: Vec<usize>,
+    pub dtype: DType,
+    /// Row-major values; `data.len() == shape.iter().product()`.
+    pub data: Vec<f64>,
+}
+
+impl NpyArray {
+    /// The shape as NumPy prints it, e.g. `(20, 17)` or `(5,)`.
+    pub fn shape_string(&self) -> String {
+        shape_string(&self.shape)
+    }
+
+    /// Checks the shape against a pattern where `None` matches any length.
+    /// The error names `path` and `what` (e.g. the array name inside an `.npz`).
+    pub fn expect_shape(&self, path: &Path, what: &str, pattern: &[Option<usize>]) -> Result<(), DataError> {
+        let ok = self.shape.len() == pattern.len()
+            && self.shape.iter().zip(pattern).all(|(&s, p)| p.is_none_or(|p| p == s));
+        if ok {
+            return Ok(());
+        }
+        let expected: Vec<String> =
+            pattern.iter().map(|p| p.map_or_else(|| "N".to_string(), |p| p.to_string())).collect();
+        Err(DataError::Npy {
+            path: path.to_path_buf(),
+            message: format!(
+                "{what} has shape {}, expected ({}); the file is not in the expected layout",
+                self.shape_string(),
+                expected.join(", ")
+            ),
+        })
+    }
+
+    /// Row `i` of a 2-D array.
+    pub fn row(&self, i: usize) -> &[f64] {
+        let cols = self.shape.get(1).copied().unwrap_or(1);
+        &self.data[i * cols..(i + 1) * cols]
+    }
+}
+
+fn shape_string(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        _ => format!("({})", shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ")),
+    }
+}
+
+/// Parses the bytes of a `.npy` file. Errors are plain messages; callers add the path.
+pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
+    if bytes.len() < 10 || &bytes[..6] != MAGIC {
+        return Err("not a .npy file (missing the \\x93NUMPY magic)".into());
+    }
+    let major = bytes[6];
+    let (header_len, header_start) = match major {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 => {
+            let b = bytes.get(8..12).ok_or("truncated .npy header")?;
+            (u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, 12)
+        }
+        v => return Err(format!("unsupported .npy format version {v} (1, 2 and 3 are supported)")),
+    };
+    let header = bytes.get(header_start..header_start + header_len).ok_or("truncated .npy header")?;
+    let header = std::str::from_utf8(header).map_err(|_| "the .npy header is not text")?;
+    let (dtype, fortran, shape) = parse_header(header)?;
+    if fortran {
+        return Err("Fortran-order arrays are not supported; save np.ascontiguousarray(a) instead".into());
+    }
+    let count: usize = shape.iter().product();
+    let body = &bytes[header_start + header_len..];
+    let expected = count * dtype.size();
+    if body.len() != expected {
+        return Err(format!(
+            "data section holds {} bytes but shape {} of {dtype:?} needs {expected} (truncated or corrupt file)",
+            body.len(),
+            shape_string(&shape)
+        ));
+    }
+    let data = match dtype {
+        DType::F4 => body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
+        DType::I4 => body.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
+        DType::F8 => body.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("chunk of 8"))).collect(),
+        DType::I8 => body.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().expect("chunk of 8")) as f64).collect(),
+    };
+    Ok(NpyArray { shape, dtype, data })
+}
+
+/// Parses the Python dict literal of the header: `descr`, `fortran_order`, `shape`.
+fn parse_header(header: &str) -> Result<(DType, bool, Vec<usize>), String> {
+    let descr = dict_value(header, "descr")?;
+    let descr = descr
+        .strip_prefix('\'')
+        .and_then(|d| d.split('\'').next())
+        .or_else(|| descr.strip_prefix('"').and_then(|d| d.split('"').next()))
+        .ok_or_else(|| format!("cannot read 'descr' in header {header:?}"))?;
+    let unsupported = || {
+        format!(
+            "dtype '{descr}' is not supported (expected little-endian float32, float64, int32 or \
+             int64); convert with a.astype('<f8')"
+        )
+    };
+    let (order, code) = descr.split_at_checked(1).ok_or_else(unsupported)?;
+    match order {
+        "<" | "|" => {}
+        "=" if cfg!(target_endian = "little") => {}
+        ">" => {
+            return Err(format!(
+                "big-endian data ('{descr}') is not supported; convert with a.astype('<{code}')"
+            ));
+        }
+        _ => return Err(unsupported()),
+    }
+    let dtype = match code {
+        "f4" => DType::F4,
+        "f8" => DType::F8,
+        "i4" => DType::I4,
+        "i8" => DType::I8,
+        _ => return Err(unsupported()),
+    };
+    let fortran = match dict_value(header, "fortran_order")? {
+        v if v.starts_with("True") => true,
+        v if v.starts_with("False") => false,
+        _ => return Err(format!("cannot read 'fortran_order' in header {header:?}")),
+    };
+    let shape_src = dict_value(header, "shape")?;
+    let inner = shape_src
+        .strip_prefix('(')
+        .and_then(|s| s.split(')').next())
+        .ok_or_else(|| format!("cannot read 'shape' in header {header:?}"))?;
+    let shape = inner
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| s.trim_end_matches('L').parse::<usize>())
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|_| format!("cannot read 'shape' in header {header:?}"))?;
+    Ok((dtype, fortran, shape))
+}
+
+/// The text right after `'key':` in the header dict (leading spaces skipped).
+fn dict_value<'a>(header: &'a str, key: &str) -> Result<&'a str, String> {
+    let pos = header
+        .find(&format!("'{key}'"))
+        .or_else(|| header.find(&format!("\"{key}\"")))
+        .ok_or_else(|| format!("header has no '{key}' entry: {header:?}"))?;
+    let rest = header[pos + key.len() + 2..].trim_start();
+    rest.strip_prefix(':')
+        .map(str::trim_start)
+        .ok_or_else(|| format!("cannot read '{key}' in header {header:?}"))
+}
+
+/// Reads a `.npy` file.
+pub fn read_npy(path: &Path) -> Result<NpyArray, DataError> {
+    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    parse_npy(&bytes).map_err(|message| DataError::Npy { path: path.to_path_buf(), message })
+}
+
+/// Serialises a C-order little-endian `f64` array as `.npy` (format version 1).
+pub fn npy_bytes_f64(shape: &[usize], data: &[f64]) -> Vec<u8> {
+    assert_eq!(shape.iter().product::<usize>(), data.len(), "npy_bytes_f64: shape does not match data");
+    let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {}, }}", shape_string(shape));
+    // Pad so that magic + version + length + header (with its newline) is a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 8);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&[1, 0]);
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// Writes a C-order `f64` array as a `.npy` file.
+pub fn write_npy_f64(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), DataError> {
+    std::fs::write(path, npy_bytes_f64(shape, data)).map_err(|e| DataError::io(path, e))
+}
+
+/// All arrays of a `.npz` archive, by name (without the `.npy` suffix).
+#[derive(Clone, Debug)]
+pub struct Npz {
+    path: PathBuf,
+    arrays: BTreeMap<String, NpyArray>,
+}
+
+impl Npz {
+    /// Reads every array of the archive at `path`.
+    pub fn read(path: &Path) -> Result<Npz, DataError> {
+        let bad = |message: String| DataError::Npy { path: path.to_path_buf(), message };
+        let file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
+        let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file))
+            .map_err(|e| bad(format!("not a valid .npz (zip) archive: {e}")))?;
+        let mut arrays = BTreeMap::new();
+        for i in 0..archive.len() {
+            let mut entry = archive.by_index(i).map_err(|e| bad(format!("cannot read archive entry {i}: {e}")))?;
+            let name = entry.name().to_string();
+            let Some(key) = name.strip_suffix(".npy") else { continue };
+            let mut bytes = Vec::with_capacity(entry.size() as usize);
+            entry.read_to_end(&mut bytes).map_err(|e| bad(format!("cannot read {name}: {e}")))?;
+            let array = parse_npy(&bytes).map_err(|m| bad(format!("{name}: {m}")))?;
+            arrays.insert(key.to_string(), array);
+        }
+        Ok(Npz { path: path.to_path_buf(), arrays })
+    }
+
+    /// The archive's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Array `name`, or `None`.
+    pub fn get(&self, name: &str) -> Option<&NpyArray> {
+        self.arrays.get(name)
+    }
+
+    /// Array `name`, or an error that names the archive and the missing key.
+    pub fn require(&self, name: &str) -> Result<&NpyArray, DataError> {
+        self.get(name).ok_or_else(|| DataError::Npy {
+            path: self.path.clone(),
+            message: format!("the archive has no array '{name}' (it holds {} arrays)", self.arrays.len()),
+        })
+    }
+
+    /// Names of all arrays, sorted.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.arrays.keys().map(String::as_str)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Builds a version-`major` `.npy` byte string from a header dict and raw data.
+    fn hand_built(major: u8, dict: &str, body: &[u8]) -> Vec<u8> {
+        let mut out = MAGIC.to_vec();
+        out.extend_from_slice(&[major, 0]);
+        let header = format!("{dict}   \n");
+        if major == 1 {
+            out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        } else {
+            out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+        }
+        out.extend_from_slice(header.as_bytes());
+        out.extend_from_slice(body);
+        out
+    }
+
+    #[test]
+    fn reads_hand_built_v1_f4() {
+        let body: Vec<u8> = [1.5f32, -2.0, 3.25, 4.0, 5.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let bytes = hand_built(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", &body);
+        let a = parse_npy(&bytes).unwrap();
+        assert_eq!(a.shape, vec![2, 3]);
+        assert_eq!(a.dtype, DType::F4);
+        assert_eq!(a.data, vec![1.5, -2.0, 3.25, 4.0, 5.0, 6.0]);
+        assert_eq!(a.row(1), &[4.0, 5.0, 6.0]);
+    }
+
+    #[test]
+    fn reads_v2_v3_and_integers() {
+        let body: Vec<u8> = [7i64, -8].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let a = parse_npy(&hand_built(2, "{'descr': '<i8', 'fortran_order': False, 'shape': (2,), }", &body)).unwrap();
+        assert_eq!((a.shape.clone(), a.data.clone()), (vec![2], vec![7.0, -8.0]));
+        let body: Vec<u8> = [3i32].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let a = parse_npy(&hand_built(3, "{'descr': '<i4', 'fortran_order': False, 'shape': (), }", &body)).unwrap();
+        assert_eq!((a.shape.clone(), a.data.clone()), (vec![], vec![3.0]));
+    }
+
+    #[test]
+    fn writer_round_trips() {
+        let data: Vec<f64> = (0..34).map(|i| i as f64 * 0.5 - 3.0).collect();
+        let bytes = npy_bytes_f64(&[2, 17], &data);
+        assert_eq!(bytes.len() % 64, (34 * 8) % 64, "header is padded to 64 bytes");
+        let a = parse_npy(&bytes).unwrap();
+        assert_eq!((a.shape, a.dtype, a.data), (vec![2, 17], DType::F8, data));
+    }
+
+    #[test]
+    fn rejects_unsupported_layouts() {
+        let body = [0u8; 8];
+        let err = parse_npy(&hand_built(1, "{'descr': '<f8', 'fortran_order': True, 'shape': (1,), }", &body));
+        assert!(err.unwrap_err().contains("Fortran"));
+        let err = parse_npy(&hand_built(1, "{'descr': '>f8', 'fortran_order': False, 'shape': (1,), }", &body));
+        assert!(err.unwrap_err().contains("big-endian"));
+        let err = parse_npy(&hand_built(1, "{'descr': '<U2', 'fortran_order': False, 'shape': (1,), }", &body));
+        assert!(err.unwrap_err().contains("not supported"));
+        let err = parse_npy(&hand_built(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2,), }", &body));
+        assert!(err.unwrap_err().contains("truncated"));
+        assert!(parse_npy(b"PK\x03\x04 not npy").unwrap_err().contains("magic"));
+    }
+
+    #[test]
+    fn shape_check_names_path() {
+        let a = NpyArray { shape: vec![20, 15], dtype: DType::F8, data: vec![0.0; 300] };
+        assert!(a.expect_shape(Path::new("x.npy"), "poses", &[None, Some(15)]).is_ok());
+        let msg = a.expect_shape(Path::new("x.npy"), "poses", &[None, Some(17)]).unwrap_err().to_string();
+        assert!(msg.contains("x.npy") && msg.contains("(20, 15)") && msg.contains("(N, 17)"), "{msg}");
+    }
+}

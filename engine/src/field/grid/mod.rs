@@ -1,0 +1,804 @@
+//! The hash-grid field (Instant-NGP style): a multiresolution hash encoding, a density
+//! MLP and a colour MLP without biases, analytic normals, and the exact backward pass
+//! including the second-order path through the normals.
+//!
+//! Owns `kernels/field/grid_lib.wgsl` (shared bindings 0..2 and per-sample math),
+//! `grid_density.wgsl`, `grid_forward.wgsl`, `grid_backward.wgsl`, `grid_outer.wgsl`
+//! and `grid_finalize.wgsl`, their bind layouts and launches; the CPU reference of the
+//! whole forward (and, for the tests, backward) pass is [`reference`].
+//!
+//! # Encoding
+//! Space: `p = (x - aabb_min) / (aabb_max - aabb_min)`. The AABB is the scene's content
+//! box: object-centric (blender, DTU, synthetic) or the NDC cube `[-1, 1]^3` for LLFF.
+//! A point outside it is **clamped** to the box for the encoding and gets **zero
+//! density and a zero normal**; its colour is still evaluated (harmless: its rendering
+//! weight is zero), so nothing outside the box can hold density.
+//!
+//! Level `l = 0 .. L-1` (`L` levels, `F = 2` features, `T = 2^log2_hashmap_size`):
+//! ```text
+//! b    = exp((ln N_max - ln N_min) / (L - 1))          (b = 1 when L = 1)
+//! s_l  = N_min b^l - 1     pos = p s_l + 1/2     c = floor(pos)     f = pos - c
+//! w_B(f) = prod_d (B_d ? f_d : 1 - f_d)                 B in {0,1}^3, the 8 corners
+//! R_l  = floor(s_l + 1/2) + 2 vertices per axis; dense index x + R (y + R z) when
+//!        R_l^3 <= T (the level then stores R_l^3 entries), otherwise the spatial hash
+//!        (x * 1 ^ y * 2654435761 ^ z * 805459861) mod T (T entries)
+//! e_{l,f} = mu_l sum_B w_B(f) F_l[i_B, f]               mu_l = [l < active levels]
+//! J_{(l,f),d} = de_{l,f}/dx_d = mu_l sum_B dw_B/df_d F_l[i_B, f] s_l / extent_d
+//! ```
+//! `e` has `in_dim = 2L` entries, zero-padded to `in_pad` (a multiple of 4).
+//! Coarse-to-fine annealing sets the active levels ([`GridField::set_active_levels`]).
+//!
+//! # MLPs (tiny-cuda-nn "FullyFusedMLP" without biases; width `W`, default 64)
+//! ```text
+//! z1 = W1 e   a1 = relu(z1)   h = W2 a1 (16)   sigma = [inside] act(h0)
+//! xc = [h, SH_4(d)] (32)   ac1 = relu(C1 xc)   ac2 = relu(C2 ac1)   o = C3 ac2   rgb = sigmoid(o)
+//! ```
+//! `act` is `trunc_exp` (forward `exp(min(h0, 80))`, derivative `exp(clamp(h0, -15, 15))`
+//! as Instant-NGP) or `softplus`. `SH_4` is the real spherical-harmonics basis of
+//! degree 4 (16 terms, tiny-cuda-nn constants) of the unit view direction.
+//!
+//! # Analytic normals (no finite differences)
+//! ```text
+//! m = relu'(z1) in {0,1}^W (relu'(0) = 0)      g = dh0/de = W1^T (m * W2[0,:])
+//! v = J^T g       u = grad_x sigma = act'(h0) v       n = -u / |u|   (0 if |u| <= eps)
+//! ```
+//!
+//! # Backward (per sample; c = dL/dn, everything else standard back-propagation)
+//! ```text
+//! colour:  d_o = dL/drgb * rgb (1 - rgb);  dac2 = C3^T d_o * m2;  dac1 = C2^T dac2 * m1
+//!          dxc = C1^T dac1;  dh = dxc[0..16]
+//! density: dh0 += [inside] dL/dsigma act'(h0)
+//! normal:  du = -(I - n n^T) c / |u|            (derivative of -u/|u|)
+//!          dv = act'(h0) du;  dh0 += act''(h0) <v, du>   (= 0 analytically: du is
+//!          orthogonal to u, the normal is scale invariant; computed anyway)
+//!          dL/dJ = g (x) dv  ->  J is linear in the features:
+//!              dF_l[i_B, f] += mu_l g_{l,f} <dw_B/df, dv * s_l / extent>
+//!          dg = J dv  ->  g = W1^T (m * W2[0,:]) with m piecewise constant:
+//!              dW1 += (m * W2[0,:]) (x) dg        dW2[0,j] += m_j (W1 dg)_j
+//! first order: d1 = W2^T dh * m;  dW2 += dh (x) a1;  dW1 += d1 (x) e;  de = W1^T d1
+//!          dF_l[i_B, f] += mu_l w_B(f) de_{l,f}
+//! ```
+//! No gradient flows to the position or the direction.
+//!
+//! # Kernels and performance design
+//! * `forward`: one thread per sample, fully fused (encode, both MLPs, normal).
+//! * `backward`: one thread per sample of a chunk: recomputes the forward pass,
+//!   back-propagates, scatters the hash-feature gradients with `atomicAddF32` (as
+//!   Instant-NGP; combined per corner and feature, zeros skipped) and writes the layer
+//!   inputs/deltas to a scratch buffer (sample-major rows, 11 regions).
+//! * `outer`: weight gradients as sums of outer products over the chunk: one thread per
+//!   (4x4 weight tile, group of [`SAMPLES_PER_THREAD`] samples) accumulates in
+//!   registers and adds 16 partials with atomics: one atomic per weight per group.
+//!   The normal path's two weight terms share `M = sum_s m_s (x) dg_s` (one more
+//!   `outer` with the ReLU mask), turned into `dW1 += diag(W2[0,:]) M` and
+//!   `dW2[0,j] += <W1[j,:], M[j,:]>` by `finalize` once per backward call.
+//! * The batch is processed in chunks of at most [`GridConfig::backward_chunk`] samples
+//!   so the scratch (2000 bytes per sample at the default width) stays under the
+//!   storage binding limit (128 MiB on lavapipe).
+//! * Weights are read from storage (vec4 loads, uniform across a workgroup);
+//!   workgroup-memory weights and cooperative matrices are later optimisations.
+//!
+//! # Invariants
+//! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
+//!   `grid.mlp` (`W1 [W][in_pad] | W2 [16][W] | C1 [W][32] | C2 [W][W] | C3 [4][W]`,
+//!   row-major, vec4-aligned). Padding (columns of W1 past `2L`, row 3 of C3) is zero
+//!   at creation and on import and never receives gradient; exports strip it.
+//! * Gradient buffers have the parameters' lengths; every pass adds to them.
+//! * Initialisation is deterministic for a seed: table uniform(-r, r) (r = 1e-4),
+//!   MLP layers Xavier-uniform (as tiny-cuda-nn).
+
+pub mod reference;
+#[cfg(test)]
+mod tests;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use super::{Field, FieldError, NamedArray, ParamGroup};
+use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
+use crate::optim::WeightDecay;
+use crate::samples::{FieldGrads, FieldOutputs, SampleBatch};
+
+/// Outputs of the density MLP (the first is the pre-activation density).
+pub const DENSITY_OUT: u32 = 16;
+/// Spherical-harmonics terms of the direction encoding (degree 4).
+pub const SH_TERMS: u32 = 16;
+/// Largest supported number of levels (the encoding has at most 64 features).
+pub const MAX_LEVELS: u32 = 32;
+/// Largest supported hidden width.
+pub const MAX_WIDTH: u32 = 64;
+/// Samples summed per thread by the weight-gradient kernel.
+pub const SAMPLES_PER_THREAD: u32 = 256;
+
+/// Density activation `sigma = act(h0)`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DensityActivation {
+    /// `exp`, with the derivative's argument clamped to `[-15, 15]` (Instant-NGP).
+    #[default]
+    TruncExp,
+    Softplus,
+}
+
+/// Configuration of the hash-grid field. Defaults are Instant-NGP's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct GridConfig {
+    /// Levels `L` (1..=32).
+    pub n_levels: u32,
+    /// Features per level `F`; only 2 is supported.
+    pub features_per_level: u32,
+    /// `log2 T`, entries per hashed level.
+    pub log2_hashmap_size: u32,
+    /// Coarsest resolution `N_min`.
+    pub base_resolution: u32,
+    /// Finest resolution `N_max`; Instant-NGP uses `2048 x aabb_scale` (the trainer
+    /// scales it for large boxes).
+    pub finest_resolution: f32,
+    /// Hidden width of both MLPs (a multiple of 4, at most 64).
+    pub hidden_width: u32,
+    pub density_activation: DensityActivation,
+    /// Hash-table entries start uniform in `[-r, r]`.
+    pub table_init_range: f32,
+    /// Seed of the deterministic initialisation.
+    pub seed: u64,
+    /// Normals are zero where `|grad_x sigma| <= normal_eps`.
+    pub normal_eps: f32,
+    /// Most samples per backward chunk (bounds the scratch memory).
+    pub backward_chunk: u32,
+    /// Optimizer hints: learning-rate multipliers and the MLP's L2 weight decay.
+    pub table_lr_scale: f32,
+    pub mlp_lr_scale: f32,
+    pub mlp_weight_decay: f32,
+}
+
+impl Default for GridConfig {
+    fn default() -> Self {
+        Self {
+            n_levels: 16,
+            features_per_level: 2,
+            log2_hashmap_size: 19,
+            base_resolution: 16,
+            finest_resolution: 2048.0,
+            hidden_width: 64,
+            density_activation: DensityActivation::TruncExp,
+            table_init_range: 1e-4,
+            seed: 0,
+            normal_eps: 1e-10,
+            backward_chunk: 1 << 16,
+            table_lr_scale: 1.0,
+            mlp_lr_scale: 1.0,
+            mlp_weight_decay: 1e-6,
+        }
+    }
+}
+
+impl GridConfig {
+    pub fn validate(&self) -> Result<(), FieldError> {
+        let err = |m: String| Err(FieldError::Config(m));
+        if !(1..=MAX_LEVELS).contains(&self.n_levels) {
+            return err(format!("n_levels = {} must lie in 1..={MAX_LEVELS}", self.n_levels));
+        }
+        if self.features_per_level != 2 {
+            return err(format!("features_per_level = {}: only 2 is supported", self.features_per_level));
+        }
+        if !(1..=24).contains(&self.log2_hashmap_size) {
+            return err(format!("log2_hashmap_size = {} must lie in 1..=24", self.log2_hashmap_size));
+        }
+        if self.base_resolution < 2 {
+            return err(format!("base_resolution = {} must be at least 2", self.base_resolution));
+        }
+        if !(self.finest_resolution.is_finite() && self.finest_resolution >= self.base_resolution as f32) {
+            return err(format!(
+                "finest_resolution = {} must be finite and >= base_resolution = {}",
+                self.finest_resolution, self.base_resolution
+            ));
+        }
+        if self.hidden_width == 0 || self.hidden_width % 4 != 0 || self.hidden_width > MAX_WIDTH {
+            return err(format!("hidden_width = {} must be a multiple of 4 in 4..={MAX_WIDTH}", self.hidden_width));
+        }
+        if !(self.normal_eps >= 0.0 && self.table_init_range >= 0.0) {
+            return err("normal_eps and table_init_range must be >= 0".into());
+        }
+        if self.backward_chunk < 64 {
+            return err(format!("backward_chunk = {} must be at least 64", self.backward_chunk));
+        }
+        Ok(())
+    }
+
+    /// Per-level scale factor `b`.
+    pub fn per_level_scale(&self) -> f64 {
+        if self.n_levels <= 1 {
+            1.0
+        } else {
+            ((self.finest_resolution as f64).ln() - (self.base_resolution as f64).ln()) / (self.n_levels as f64 - 1.0)
+        }
+        .exp()
+    }
+}
+
+/// Where level `l` lives in the table and how it is indexed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LevelInfo {
+    /// First entry of the level.
+    pub offset: u32,
+    /// Entries of the level (`res^3` dense, `T` hashed).
+    pub size: u32,
+    /// Vertices per axis of a dense level; 0 for a hashed level.
+    pub dense_res: u32,
+    /// `s_l`: `pos = p * scale + 0.5`.
+    pub scale: f32,
+}
+
+/// Sizes and offsets of every parameter of a [`GridConfig`] (offsets in floats).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GridLayout {
+    pub levels: Vec<LevelInfo>,
+    /// Entries of the whole table (2 floats each).
+    pub table_entries: usize,
+    /// Encoding width `2L` and its padding to a multiple of 4.
+    pub in_dim: usize,
+    pub in_pad: usize,
+    pub width: usize,
+    pub w1: usize,
+    pub w2: usize,
+    pub c1: usize,
+    pub c2: usize,
+    pub c3: usize,
+    pub mlp_len: usize,
+}
+
+impl GridLayout {
+    pub fn new(cfg: &GridConfig) -> Result<Self, FieldError> {
+        cfg.validate()?;
+        let t = 1u64 << cfg.log2_hashmap_size;
+        let b = cfg.per_level_scale();
+        let mut levels = Vec::new();
+        let mut offset = 0u64;
+        for l in 0..cfg.n_levels {
+            let scale = (cfg.base_resolution as f64 * b.powi(l as i32) - 1.0) as f32;
+            let res = (scale + 0.5).floor() as u64 + 2;
+            let (size, dense_res) = if res * res * res <= t { (res * res * res, res as u32) } else { (t, 0) };
+            levels.push(LevelInfo { offset: offset as u32, size: size as u32, dense_res, scale });
+            offset += size;
+        }
+        if offset * 2 > u32::MAX as u64 {
+            return Err(FieldError::Config(format!("hash table of {offset} entries is too large")));
+        }
+        let in_dim = 2 * cfg.n_levels as usize;
+        let in_pad = in_dim.next_multiple_of(4);
+        let w = cfg.hidden_width as usize;
+        let d = DENSITY_OUT as usize;
+        let cin = (DENSITY_OUT + SH_TERMS) as usize;
+        let w1 = 0;
+        let w2 = w1 + w * in_pad;
+        let c1 = w2 + d * w;
+        let c2 = c1 + w * cin;
+        let c3 = c2 + w * w;
+        let mlp_len = c3 + 4 * w;
+        Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len })
+    }
+
+    /// The MLP matrices as (export name, float offset, rows, cols, row stride).
+    pub fn matrices(&self) -> [(&'static str, usize, usize, usize, usize); 5] {
+        let (w, d, cin) = (self.width, DENSITY_OUT as usize, (DENSITY_OUT + SH_TERMS) as usize);
+        [
+            ("grid.density_mlp.0", self.w1, w, self.in_dim, self.in_pad),
+            ("grid.density_mlp.1", self.w2, d, w, w),
+            ("grid.color_mlp.0", self.c1, w, cin, cin),
+            ("grid.color_mlp.1", self.c2, w, w, w),
+            ("grid.color_mlp.2", self.c3, 3, w, w),
+        ]
+    }
+
+    /// Floats of backward scratch per sample.
+    pub fn scratch_floats_per_sample(&self) -> usize {
+        4 * scratch_dims4(self).iter().sum::<u32>() as usize
+    }
+}
+
+/// Name of the table parameter array / group.
+pub const TABLE_NAME: &str = "grid.table";
+/// Name of the MLP parameter group.
+pub const MLP_NAME: &str = "grid.mlp";
+
+// ---------------------------------------------------------------- GPU-side layouts
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuLevel {
+    offset: u32,
+    size: u32,
+    res: u32,
+    scale: f32,
+}
+
+/// Mirror of `GridParams` in `grid_lib.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GridParams {
+    aabb_min: [f32; 3],
+    n_levels: u32,
+    inv_extent: [f32; 3],
+    active_levels: u32,
+    in4: u32,
+    width4: u32,
+    activation: u32,
+    flags: u32,
+    w1: u32,
+    w2: u32,
+    c1: u32,
+    c2: u32,
+    c3: u32,
+    n: u32,
+    chunk_start: u32,
+    chunk_len: u32,
+    normal_eps: f32,
+    _pad: [u32; 3],
+    scratch: [[u32; 4]; 3],
+    levels: [GpuLevel; MAX_LEVELS as usize],
+}
+
+/// Mirror of `OuterParams` in `grid_outer.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct OuterParams {
+    d_off: u32,
+    d_stride: u32,
+    x_off: u32,
+    x_stride: u32,
+    out4: u32,
+    in4: u32,
+    n_out: u32,
+    mask_d: u32,
+    grad_off: u32,
+    grad_stride: u32,
+    chunk_start: u32,
+    chunk_len: u32,
+    spt: u32,
+    capacity: u32,
+    _pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct FinalizeParams {
+    w1: u32,
+    w2: u32,
+    in4: u32,
+    width: u32,
+}
+
+const FLAG_NORMALS: u32 = 1;
+
+use Binding::{ReadOnly as R, ReadWrite as RW, Uniform as U};
+
+const DENSITY: KernelSpec =
+    KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[U, R, R, R, RW] };
+const FORWARD: KernelSpec =
+    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[U, R, R, R, R, RW, RW, RW] };
+const BACKWARD: KernelSpec = KernelSpec {
+    file: "field/grid_backward.wgsl",
+    entry: "backward",
+    // params, table, weights, samples, count, d_density, d_rgb, d_normal, table_grad, scratch
+    bindings: &[U, R, R, R, R, R, R, R, RW, RW],
+};
+const OUTER: KernelSpec = KernelSpec { file: "field/grid_outer.wgsl", entry: "outer", bindings: &[U, R, R, RW] };
+const FINALIZE: KernelSpec =
+    KernelSpec { file: "field/grid_finalize.wgsl", entry: "finalize", bindings: &[U, R, R, RW] };
+
+/// Scratch regions of the backward pass (see `grid_backward.wgsl`).
+mod region {
+    pub const E: usize = 0;
+    pub const D1: usize = 1;
+    pub const A1: usize = 2;
+    pub const DH: usize = 3;
+    pub const DG: usize = 4;
+    pub const XC: usize = 5;
+    pub const DC1: usize = 6;
+    pub const AC1: usize = 7;
+    pub const DC2: usize = 8;
+    pub const AC2: usize = 9;
+    pub const DO: usize = 10;
+    pub const COUNT: usize = 11;
+}
+
+/// vec4s per sample of each scratch region.
+fn scratch_dims4(layout: &GridLayout) -> [u32; region::COUNT] {
+    let in4 = (layout.in_pad / 4) as u32;
+    let w4 = (layout.width / 4) as u32;
+    [in4, w4, w4, 4, in4, 8, w4, w4, w4, w4, 1]
+}
+
+struct Scratch {
+    buffer: GpuBuffer<[f32; 4]>,
+    chunk: u32,
+    /// vec4 offset of each region.
+    offsets: [u32; region::COUNT],
+}
+
+// ---------------------------------------------------------------- the field
+
+/// The hash-grid field. See the module doc.
+pub struct GridField {
+    config: GridConfig,
+    layout: GridLayout,
+    aabb: [Vec3; 2],
+    active_levels: u32,
+    table: GpuBuffer<f32>,
+    table_grad: GpuBuffer<f32>,
+    mlp: GpuBuffer<f32>,
+    mlp_grad: GpuBuffer<f32>,
+    /// `M = sum_s m_s (x) dg_s` of the normal path, `[W][in_pad]`.
+    normal_m: GpuBuffer<f32>,
+    scratch: Option<Scratch>,
+}
+
+/// Deterministic generator for the initialisation (SplitMix64).
+pub(crate) struct SplitMix64(u64);
+
+impl SplitMix64 {
+    pub(crate) fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+    pub(crate) fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[-r, r)`.
+    pub(crate) fn uniform(&mut self, r: f64) -> f64 {
+        ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * r
+    }
+}
+
+/// Initial parameters for `config` (table, MLP), as described in the module doc.
+pub fn initial_params(config: &GridConfig, layout: &GridLayout) -> (Vec<f32>, Vec<f32>) {
+    let mut rng = SplitMix64::new(config.seed);
+    let r = config.table_init_range as f64;
+    let table: Vec<f32> = (0..layout.table_entries * 2).map(|_| rng.uniform(r) as f32).collect();
+    let mut mlp = vec![0.0f32; layout.mlp_len];
+    for (_, off, rows, cols, stride) in layout.matrices() {
+        let bound = (6.0 / (rows + cols) as f64).sqrt();
+        for r in 0..rows {
+            for c in 0..cols {
+                mlp[off + r * stride + c] = rng.uniform(bound) as f32;
+            }
+        }
+    }
+    (table, mlp)
+}
+
+impl GridField {
+    /// A field over the box `aabb` (`[min, max]`, world or NDC units) with the
+    /// deterministic initialisation of `config.seed`.
+    pub fn new(gpu: &Gpu, config: &GridConfig, aabb: [Vec3; 2]) -> Result<Self, FieldError> {
+        let layout = GridLayout::new(config)?;
+        if !(aabb[0].is_finite() && aabb[1].is_finite() && aabb[0].cmplt(aabb[1]).all()) {
+            return Err(FieldError::Config(format!("aabb {aabb:?} must be finite with min < max")));
+        }
+        let (table, mlp) = initial_params(config, &layout);
+        let w = layout.width;
+        Ok(Self {
+            config: config.clone(),
+            aabb,
+            active_levels: config.n_levels,
+            table: GpuBuffer::from_slice(gpu, "grid table", &table)?,
+            table_grad: GpuBuffer::zeros(gpu, "grid table grad", table.len())?,
+            mlp: GpuBuffer::from_slice(gpu, "grid mlp", &mlp)?,
+            mlp_grad: GpuBuffer::zeros(gpu, "grid mlp grad", mlp.len())?,
+            normal_m: GpuBuffer::zeros(gpu, "grid normal M", w * layout.in_pad)?,
+            layout,
+            scratch: None,
+        })
+    }
+
+    pub fn config(&self) -> &GridConfig {
+        &self.config
+    }
+    pub fn layout(&self) -> &GridLayout {
+        &self.layout
+    }
+    pub fn aabb(&self) -> [Vec3; 2] {
+        self.aabb
+    }
+    pub fn active_levels(&self) -> u32 {
+        self.active_levels
+    }
+    /// The parameter and gradient buffers (table, MLP).
+    pub fn buffers(&self) -> [(&GpuBuffer<f32>, &GpuBuffer<f32>); 2] {
+        [(&self.table, &self.table_grad), (&self.mlp, &self.mlp_grad)]
+    }
+
+    /// The CPU reference model holding a copy of the current parameters (f64).
+    pub fn reference(&self, gpu: &Gpu) -> Result<reference::GridModel, GpuError> {
+        Ok(reference::GridModel {
+            layout: self.layout.clone(),
+            activation: self.config.density_activation,
+            aabb: [self.aabb[0].to_array().map(f64::from), self.aabb[1].to_array().map(f64::from)],
+            active_levels: self.active_levels,
+            normal_eps: self.config.normal_eps as f64,
+            table: self.table.read(gpu)?.into_iter().map(f64::from).collect(),
+            mlp: self.mlp.read(gpu)?.into_iter().map(f64::from).collect(),
+        })
+    }
+
+    fn params_uniform(&self, n: u32, flags: u32, chunk_start: u32, chunk_len: u32) -> GridParams {
+        let ext = self.aabb[1] - self.aabb[0];
+        let mut levels = [GpuLevel::zeroed(); MAX_LEVELS as usize];
+        for (g, l) in levels.iter_mut().zip(&self.layout.levels) {
+            *g = GpuLevel { offset: l.offset, size: l.size, res: l.dense_res, scale: l.scale };
+        }
+        let mut scratch = [[0u32; 4]; 3];
+        if let Some(s) = &self.scratch {
+            for (r, off) in s.offsets.iter().enumerate() {
+                scratch[r / 4][r % 4] = *off;
+            }
+        }
+        let l = &self.layout;
+        GridParams {
+            aabb_min: self.aabb[0].to_array(),
+            n_levels: self.config.n_levels,
+            inv_extent: [1.0 / ext.x, 1.0 / ext.y, 1.0 / ext.z],
+            active_levels: self.active_levels.min(self.config.n_levels),
+            in4: (l.in_pad / 4) as u32,
+            width4: (l.width / 4) as u32,
+            activation: match self.config.density_activation {
+                DensityActivation::TruncExp => 0,
+                DensityActivation::Softplus => 1,
+            },
+            flags,
+            w1: (l.w1 / 4) as u32,
+            w2: (l.w2 / 4) as u32,
+            c1: (l.c1 / 4) as u32,
+            c2: (l.c2 / 4) as u32,
+            c3: (l.c3 / 4) as u32,
+            n,
+            chunk_start,
+            chunk_len,
+            normal_eps: self.config.normal_eps,
+            _pad: [0; 3],
+            scratch,
+            levels,
+        }
+    }
+
+    /// Makes sure a scratch buffer for chunks of up to `capacity` samples exists.
+    fn ensure_scratch(&mut self, gpu: &Gpu, capacity: u32) -> Result<(), GpuError> {
+        let dims = scratch_dims4(&self.layout);
+        let per_sample_bytes = 16 * dims.iter().sum::<u32>() as u64;
+        let limit = gpu.limits().max_storage_buffer_binding_size as u64;
+        let by_limit = ((limit / per_sample_bytes) as u32) / 64 * 64;
+        let wanted = self.config.backward_chunk.min(by_limit).min(capacity.max(1).next_multiple_of(64)).max(64);
+        if self.scratch.as_ref().is_some_and(|s| s.chunk >= wanted) {
+            return Ok(());
+        }
+        self.scratch = None;
+        let mut offsets = [0u32; region::COUNT];
+        let mut total = 0u32;
+        for (o, d) in offsets.iter_mut().zip(dims) {
+            *o = total;
+            total += d * wanted;
+        }
+        let buffer = GpuBuffer::zeros(gpu, "grid backward scratch", total as usize)?;
+        self.scratch = Some(Scratch { buffer, chunk: wanted, offsets });
+        Ok(())
+    }
+}
+
+impl Field for GridField {
+    fn kind(&self) -> &'static str {
+        "grid"
+    }
+
+    fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
+    -> Result<(), GpuError> {
+        assert!(points.len() >= count as usize && out.len() >= count as usize, "density: buffers shorter than count");
+        let kernel = gpu.kernel(&DENSITY)?;
+        let mut enc = gpu.encoder();
+        let params = enc.uniform(&self.params_uniform(count, 0, 0, 0));
+        enc.dispatch_threads(
+            &kernel,
+            &[&params, &self.table.buffer, &self.mlp.buffer, &points.buffer, &out.buffer],
+            count,
+        );
+        enc.submit();
+        Ok(())
+    }
+
+    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
+        let cap = batch.capacity;
+        assert!(
+            out.density.len() >= cap as usize && out.rgb.len() >= cap as usize && out.normal.len() >= cap as usize,
+            "forward: FieldOutputs smaller than the batch capacity"
+        );
+        let kernel = gpu.kernel(&FORWARD)?;
+        let mut enc = gpu.encoder();
+        let flags = if normals { FLAG_NORMALS } else { 0 };
+        let params = enc.uniform(&self.params_uniform(cap, flags, 0, cap));
+        enc.dispatch_threads(
+            &kernel,
+            &[
+                &params,
+                &self.table.buffer,
+                &self.mlp.buffer,
+                &batch.samples.buffer,
+                &batch.count.buffer,
+                &out.density.buffer,
+                &out.rgb.buffer,
+                &out.normal.buffer,
+            ],
+            cap,
+        );
+        enc.submit();
+        Ok(())
+    }
+
+    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
+    -> Result<(), GpuError> {
+        let cap = batch.capacity;
+        assert!(
+            grads.density.len() >= cap as usize && grads.rgb.len() >= cap as usize && grads.normal.len() >= cap as usize,
+            "backward: FieldGrads smaller than the batch capacity"
+        );
+        self.ensure_scratch(gpu, cap)?;
+        let backward = gpu.kernel(&BACKWARD)?;
+        let outer = gpu.kernel(&OUTER)?;
+        let finalize = gpu.kernel(&FINALIZE)?;
+        let scratch = self.scratch.as_ref().expect("scratch allocated above");
+        let chunk = scratch.chunk;
+        let dims = scratch_dims4(&self.layout);
+        let l = &self.layout;
+        let (in4, w4) = ((l.in_pad / 4) as u32, (l.width / 4) as u32);
+        // (d region, x region, out4, in4, n_out, mask_d, grad buffer, grad_off, grad_stride)
+        let mut products: Vec<(usize, usize, u32, u32, u32, bool, &GpuBuffer<f32>, usize, usize)> = vec![
+            (region::D1, region::E, w4, in4, l.width as u32, false, &self.mlp_grad, l.w1, l.in_pad),
+            (region::DH, region::A1, 4, w4, DENSITY_OUT, false, &self.mlp_grad, l.w2, l.width),
+            (region::DC1, region::XC, w4, 8, l.width as u32, false, &self.mlp_grad, l.c1, 32),
+            (region::DC2, region::AC1, w4, w4, l.width as u32, false, &self.mlp_grad, l.c2, l.width),
+            (region::DO, region::AC2, 1, w4, 3, false, &self.mlp_grad, l.c3, l.width),
+        ];
+        if normal_grads {
+            products.push((region::A1, region::DG, w4, in4, l.width as u32, true, &self.normal_m, 0, l.in_pad));
+        }
+        let flags = if normal_grads { FLAG_NORMALS } else { 0 };
+        let mut enc = gpu.encoder();
+        if normal_grads {
+            enc.clear(&self.normal_m.buffer);
+        }
+        let mut start = 0u32;
+        while start < cap {
+            let len = chunk.min(cap - start);
+            let params = enc.uniform(&self.params_uniform(cap, flags, start, len));
+            enc.dispatch_threads(
+                &backward,
+                &[
+                    &params,
+                    &self.table.buffer,
+                    &self.mlp.buffer,
+                    &batch.samples.buffer,
+                    &batch.count.buffer,
+                    &grads.density.buffer,
+                    &grads.rgb.buffer,
+                    &grads.normal.buffer,
+                    &self.table_grad.buffer,
+                    &scratch.buffer.buffer,
+                ],
+                len,
+            );
+            let groups = len.div_ceil(SAMPLES_PER_THREAD);
+            for &(dr, xr, out4, tin4, n_out, mask, grad, off, stride) in &products {
+                let p = OuterParams {
+                    d_off: scratch.offsets[dr],
+                    d_stride: dims[dr],
+                    x_off: scratch.offsets[xr],
+                    x_stride: dims[xr],
+                    out4,
+                    in4: tin4,
+                    n_out,
+                    mask_d: mask as u32,
+                    grad_off: off as u32,
+                    grad_stride: stride as u32,
+                    chunk_start: start,
+                    chunk_len: len,
+                    spt: SAMPLES_PER_THREAD,
+                    capacity: cap,
+                    _pad: [0; 2],
+                };
+                let pb = enc.uniform(&p);
+                enc.dispatch_threads(
+                    &outer,
+                    &[&pb, &batch.count.buffer, &scratch.buffer.buffer, &grad.buffer],
+                    out4 * tin4 * groups,
+                );
+            }
+            start += len;
+        }
+        if normal_grads {
+            let p = FinalizeParams { w1: (l.w1 / 4) as u32, w2: (l.w2 / 4) as u32, in4, width: l.width as u32 };
+            let pb = enc.uniform(&p);
+            enc.dispatch_threads(
+                &finalize,
+                &[&pb, &self.mlp.buffer, &self.normal_m.buffer, &self.mlp_grad.buffer],
+                l.width as u32,
+            );
+        }
+        enc.submit();
+        Ok(())
+    }
+
+    fn params(&self) -> Vec<ParamGroup<'_>> {
+        vec![
+            ParamGroup::new(TABLE_NAME, &self.table, &self.table_grad)
+                .lr_scale(self.config.table_lr_scale)
+                .eps(1e-15)
+                .weight_decay(WeightDecay::None)
+                .sparse(true),
+            ParamGroup::new(MLP_NAME, &self.mlp, &self.mlp_grad)
+                .lr_scale(self.config.mlp_lr_scale)
+                .eps(1e-15)
+                .weight_decay(if self.config.mlp_weight_decay > 0.0 {
+                    WeightDecay::L2 { factor: self.config.mlp_weight_decay }
+                } else {
+                    WeightDecay::None
+                }),
+        ]
+    }
+
+    fn zero_grads(&self, gpu: &Gpu) {
+        let mut enc = gpu.encoder();
+        enc.clear(&self.table_grad.buffer);
+        enc.clear(&self.mlp_grad.buffer);
+        enc.submit();
+    }
+
+    fn export(&self, gpu: &Gpu) -> Result<Vec<NamedArray>, GpuError> {
+        let table = self.table.read(gpu)?;
+        let mlp = self.mlp.read(gpu)?;
+        let mut out =
+            vec![NamedArray { name: TABLE_NAME.into(), shape: vec![self.layout.table_entries, 2], data: table }];
+        for (name, off, rows, cols, stride) in self.layout.matrices() {
+            let mut data = Vec::with_capacity(rows * cols);
+            for r in 0..rows {
+                data.extend_from_slice(&mlp[off + r * stride..off + r * stride + cols]);
+            }
+            out.push(NamedArray { name: name.into(), shape: vec![rows, cols], data });
+        }
+        Ok(out)
+    }
+
+    fn import(&mut self, gpu: &Gpu, arrays: &[NamedArray]) -> Result<(), FieldError> {
+        let find = |name: &str, len: usize| -> Result<&NamedArray, FieldError> {
+            let a = arrays
+                .iter()
+                .find(|a| a.name == name)
+                .ok_or_else(|| FieldError::Import(format!("array {name:?} is missing")))?;
+            if a.data.len() != len {
+                return Err(FieldError::Import(format!("array {name:?} has {} values, expected {len}", a.data.len())));
+            }
+            Ok(a)
+        };
+        let table = find(TABLE_NAME, self.layout.table_entries * 2)?;
+        let mut mlp = vec![0.0f32; self.layout.mlp_len];
+        for (name, off, rows, cols, stride) in self.layout.matrices() {
+            let a = find(name, rows * cols)?;
+            for r in 0..rows {
+                mlp[off + r * stride..off + r * stride + cols].copy_from_slice(&a.data[r * cols..(r + 1) * cols]);
+            }
+        }
+        self.table.write(gpu, &table.data);
+        self.mlp.write(gpu, &mlp);
+        Ok(())
+    }
+
+    fn encoding_levels(&self) -> u32 {
+        self.config.n_levels
+    }
+
+    fn set_active_levels(&mut self, n: u32) {
+        self.active_levels = n.min(self.config.n_levels);
+    }
+}

@@ -1,0 +1,667 @@
+//! Tests of the hash-grid field on the GPU in use (lavapipe on CI) against the `f64`
+//! CPU reference, and of the reference against central finite differences.
+//!
+//! Small configurations throughout (5 levels mixing dense and hashed indexing, an
+//! encoding width that needs padding, default MLP widths) so each test runs in seconds.
+
+use glam::Vec3;
+
+use super::reference::{GridModel, Trace};
+use super::*;
+use crate::field::Field;
+use crate::gpu::{test_gpu, Gpu};
+use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
+
+const AABB: [Vec3; 2] = [Vec3::new(-1.0, -0.5, -2.0), Vec3::new(1.5, 1.0, 0.5)];
+
+/// 5 levels (2 dense, 3 hashed), in_dim 10 padded to 12.
+fn small_config() -> GridConfig {
+    GridConfig {
+        n_levels: 5,
+        log2_hashmap_size: 11,
+        base_resolution: 4,
+        finest_resolution: 96.0,
+        seed: 7,
+        ..GridConfig::default()
+    }
+}
+
+fn rng(seed: u64) -> SplitMix64 {
+    SplitMix64::new(seed)
+}
+
+fn unit(rng: &mut SplitMix64) -> f64 {
+    0.5 * (rng.uniform(1.0) + 1.0)
+}
+
+/// Random samples: mostly inside the box, every 9th outside it.
+fn random_samples(n: usize, seed: u64) -> Vec<GpuSample> {
+    let mut r = rng(seed);
+    (0..n)
+        .map(|i| {
+            let margin = if i % 9 == 4 { 0.3 } else { 0.0 };
+            let pos: [f32; 3] = std::array::from_fn(|d| {
+                let t = unit(&mut r) * (1.0 + 2.0 * margin) - margin;
+                AABB[0][d] + (AABB[1][d] - AABB[0][d]) * t as f32
+            });
+            let dir = Vec3::new(r.uniform(1.0) as f32, r.uniform(1.0) as f32, r.uniform(1.0) as f32 + 0.1).normalize();
+            GpuSample { pos, t: 1.0, dir: dir.to_array(), dt: 0.01 }
+        })
+        .collect()
+}
+
+/// Replaces the field's parameters with values large enough to exercise every
+/// nonlinearity (features uniform in [-1, 1], Xavier-like MLP weights).
+fn randomize(gpu: &Gpu, field: &mut GridField, seed: u64) {
+    let mut r = rng(seed);
+    let mut arrays = field.export(gpu).unwrap();
+    for a in &mut arrays {
+        let bound = if a.name == TABLE_NAME { 1.0 } else { (6.0 / (a.shape[0] + a.shape[1]) as f64).sqrt() * 1.5 };
+        a.data.iter_mut().for_each(|v| *v = r.uniform(bound) as f32);
+    }
+    field.import(gpu, &arrays).unwrap();
+}
+
+struct Setup {
+    gpu: Gpu,
+    field: GridField,
+    batch: SampleBatch,
+    samples: Vec<GpuSample>,
+}
+
+fn setup(cfg: &GridConfig, n: usize, capacity: u32, seed: u64, disable_float_atomics: bool) -> Setup {
+    let gpu = test_gpu(disable_float_atomics);
+    let mut field = GridField::new(&gpu, cfg, AABB).unwrap();
+    randomize(&gpu, &mut field, seed);
+    let samples = random_samples(n, seed + 1);
+    let batch = SampleBatch::new(&gpu, 1, capacity).unwrap();
+    batch.samples.write(&gpu, &samples);
+    batch.count.write(&gpu, &[n as u32, n as u32]);
+    Setup { gpu, field, batch, samples }
+}
+
+fn pos(s: &GpuSample) -> [f64; 3] {
+    s.pos.map(f64::from)
+}
+fn dir(s: &GpuSample) -> [f64; 3] {
+    s.dir.map(f64::from)
+}
+
+/// Per-sample loss weights a (density), b (rgb), c (normal).
+struct LossWeights {
+    a: Vec<f32>,
+    b: Vec<[f32; 4]>,
+    c: Vec<[f32; 4]>,
+}
+
+impl LossWeights {
+    fn random(n: usize, seed: u64, wa: f32, wb: f32, wc: f32) -> Self {
+        let mut r = rng(seed);
+        let mut v = |s: f32| r.uniform(1.0) as f32 * s;
+        let a = (0..n).map(|_| v(wa)).collect();
+        let b = (0..n).map(|_| [v(wb), v(wb), v(wb), 0.0]).collect();
+        let c = (0..n).map(|_| [v(wc), v(wc), v(wc), 0.0]).collect();
+        Self { a, b, c }
+    }
+
+    fn upload(&self, gpu: &Gpu, capacity: u32) -> FieldOutputs {
+        let g = FieldOutputs::new(gpu, capacity).unwrap();
+        g.density.write(gpu, &self.a);
+        g.rgb.write(gpu, &self.b);
+        g.normal.write(gpu, &self.c);
+        g
+    }
+
+    fn loss_of(&self, i: usize, t: &Trace) -> f64 {
+        let mut l = self.a[i] as f64 * t.sigma;
+        for d in 0..3 {
+            l += self.b[i][d] as f64 * t.rgb[d] + self.c[i][d] as f64 * t.normal[d];
+        }
+        l
+    }
+
+    fn loss(&self, m: &GridModel, samples: &[GpuSample]) -> f64 {
+        samples.iter().enumerate().map(|(i, s)| self.loss_of(i, &m.forward(pos(s), dir(s)))).sum()
+    }
+
+    fn cpu_grads(&self, m: &GridModel, samples: &[GpuSample], normal_grads: bool) -> reference::Grads {
+        let mut g = m.zero_grads();
+        for (i, s) in samples.iter().enumerate() {
+            let b = [0, 1, 2].map(|d| self.b[i][d] as f64);
+            let c = [0, 1, 2].map(|d| self.c[i][d] as f64);
+            m.backward(pos(s), dir(s), self.a[i] as f64, b, c, normal_grads, &mut g);
+        }
+        g
+    }
+}
+
+/// `|got - want| <= atol + rtol |want|` elementwise with `atol = rel_of_max * max|want|`.
+fn assert_close(what: &str, got: &[f64], want: &[f64], rel_of_max: f64, rtol: f64) {
+    assert_eq!(got.len(), want.len(), "{what}: lengths");
+    let max = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let atol = rel_of_max * max.max(1e-30);
+    let mut worst = (0.0, 0usize);
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
+        let err = (g - w).abs() / (atol + rtol * w.abs());
+        if !(err <= worst.0) {
+            worst = (err, i);
+        }
+    }
+    let i = worst.1;
+    assert!(
+        worst.0 <= 1.0,
+        "{what}: element {i}: got {} want {} (max |want| {max:e}, {} elements)",
+        got[i],
+        want[i],
+        want.len()
+    );
+}
+
+fn to_f64(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+/// Central difference of `f` w.r.t. `params[idx]`.
+fn central_diff(params: &mut [f64], idx: usize, eps: f64, mut f: impl FnMut(&[f64]) -> f64) -> f64 {
+    let old = params[idx];
+    params[idx] = old + eps;
+    let lp = f(params);
+    params[idx] = old - eps;
+    let lm = f(params);
+    params[idx] = old;
+    (lp - lm) / (2.0 * eps)
+}
+
+fn scratch_rows(s: &Setup, r: usize) -> (Vec<[f32; 4]>, usize) {
+    let scratch = s.field.scratch.as_ref().unwrap();
+    let dim = scratch_dims4(&s.field.layout)[r] as usize;
+    let all = scratch.buffer.read(&s.gpu).unwrap();
+    let off = scratch.offsets[r] as usize;
+    (all[off..off + dim * scratch.chunk as usize].to_vec(), dim)
+}
+
+fn scratch_vec(rows: &(Vec<[f32; 4]>, usize), i: usize) -> Vec<f64> {
+    rows.0[i * rows.1..(i + 1) * rows.1].iter().flatten().map(|&v| v as f64).collect()
+}
+
+// ---------------------------------------------------------------- layout, init
+
+#[test]
+fn field_grid_layout_follows_instant_ngp() {
+    let cfg = GridConfig::default();
+    assert!((cfg.per_level_scale() - 1.3819).abs() < 1e-3, "b = {}", cfg.per_level_scale());
+    let lay = GridLayout::new(&cfg).unwrap();
+    assert_eq!(lay.levels.len(), 16);
+    assert_eq!(lay.levels[0].scale, 15.0);
+    assert!((lay.levels[15].scale - 2047.0).abs() < 0.1);
+    let t = 1u32 << 19;
+    let mut offset = 0;
+    for l in &lay.levels {
+        assert_eq!(l.offset, offset);
+        let r = (l.scale + 0.5).floor() as u64 + 2;
+        if r * r * r <= t as u64 {
+            assert_eq!((l.dense_res as u64, l.size as u64), (r, r * r * r));
+        } else {
+            assert_eq!((l.dense_res, l.size), (0, t));
+        }
+        offset += l.size;
+    }
+    assert!(lay.levels[0].dense_res > 0 && lay.levels[15].dense_res == 0);
+    assert_eq!((lay.in_dim, lay.in_pad, lay.width), (32, 32, 64));
+    // Table + MLP of the defaults fit lavapipe's 128 MiB bindings; so does the scratch.
+    assert!(lay.table_entries * 8 < 128 << 20);
+    assert_eq!(lay.scratch_floats_per_sample(), 500);
+    let small = GridLayout::new(&small_config()).unwrap();
+    let kinds: Vec<bool> = small.levels.iter().map(|l| l.dense_res > 0).collect();
+    assert_eq!(kinds, [true, true, false, false, false]);
+    assert_eq!((small.in_dim, small.in_pad), (10, 12));
+    assert!(GridLayout::new(&GridConfig { hidden_width: 30, ..cfg.clone() }).is_err());
+    assert!(GridLayout::new(&GridConfig { features_per_level: 4, ..cfg.clone() }).is_err());
+    assert!(GridLayout::new(&GridConfig { n_levels: 33, ..cfg }).is_err());
+}
+
+#[test]
+fn field_grid_init_is_deterministic_and_in_range() {
+    let cfg = small_config();
+    let lay = GridLayout::new(&cfg).unwrap();
+    let (t1, m1) = initial_params(&cfg, &lay);
+    let (t2, m2) = initial_params(&cfg, &lay);
+    assert_eq!((&t1, &m1), (&t2, &m2));
+    let (t3, _) = initial_params(&GridConfig { seed: 8, ..cfg.clone() }, &lay);
+    assert_ne!(t1, t3);
+    assert!(t1.iter().all(|v| v.abs() <= 1e-4) && t1.iter().any(|v| v.abs() > 5e-5));
+    // Padding of W1 (columns 10, 11) and row 3 of C3 are zero.
+    for j in 0..lay.width {
+        assert_eq!(&m1[lay.w1 + j * lay.in_pad + 10..lay.w1 + j * lay.in_pad + 12], &[0.0, 0.0]);
+    }
+    assert!(m1[lay.c3 + 3 * lay.width..].iter().all(|&v| v == 0.0));
+    let bound = (6.0f32 / (64.0 + 64.0)).sqrt();
+    assert!(m1[lay.c2..lay.c3].iter().all(|v| v.abs() <= bound));
+    let cfg_json = serde_json::to_string(&cfg).unwrap();
+    assert_eq!(serde_json::from_str::<GridConfig>(&cfg_json).unwrap(), cfg);
+    assert_eq!(serde_json::from_str::<GridConfig>("{}").unwrap(), GridConfig::default());
+}
+
+// ---------------------------------------------------------------- encoding
+
+#[test]
+fn field_grid_encoding_reference_matches_finite_differences() {
+    let gpu = test_gpu(false);
+    let mut field = GridField::new(&gpu, &small_config(), AABB).unwrap();
+    randomize(&gpu, &mut field, 3);
+    let m = field.reference(&gpu).unwrap();
+    let mut table = m.table.clone();
+    let samples = random_samples(24, 5);
+    let eps = 1e-7;
+    for s in samples.iter().filter(|s| m.to_unit(pos(s)).1) {
+        let x = pos(s);
+        let enc = m.encode(x);
+        // de/dx against central differences.
+        for d in 0..3 {
+            let mut xp = x;
+            let mut xm = x;
+            xp[d] += eps;
+            xm[d] -= eps;
+            let (ep, em) = (m.encode(xp).e, m.encode(xm).e);
+            for k in 0..m.layout.in_dim {
+                let fd = (ep[k] - em[k]) / (2.0 * eps);
+                let an = enc.jac[k][d];
+                assert!((fd - an).abs() <= 1e-5 * (1.0 + an.abs()), "de{k}/dx{d}: fd {fd} analytic {an}");
+            }
+        }
+        // de/dF: e is linear in the features with the corner weights as coefficients.
+        for (l, cs) in enc.corners.iter().enumerate() {
+            let c = cs[(l * 3 + 1) % 8];
+            for k in 0..2 {
+                let idx = 2 * c.entry + k;
+                let fd = central_diff(&mut table, idx, 1e-3, |t| {
+                    let mm = GridModel { table: t.to_vec(), ..m.clone() };
+                    mm.encode(x).e[2 * l + k]
+                });
+                let an: f64 = cs.iter().filter(|o| o.entry == c.entry).map(|o| o.w).sum();
+                assert!((fd - an).abs() < 1e-9, "de/dF level {l}: fd {fd} analytic {an}");
+            }
+        }
+    }
+}
+
+#[test]
+fn field_grid_gpu_encoding_and_mlps_match_reference() {
+    let n = 96;
+    let mut s = setup(&small_config(), n, 128, 11, false);
+    let m = s.field.reference(&s.gpu).unwrap();
+    let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+    s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+    // Zero output gradients: the backward still writes its per-sample forward values.
+    let zero = FieldOutputs::new(&s.gpu, 128).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &zero, true).unwrap();
+    let (density, rgb) = (out.density.read(&s.gpu).unwrap(), out.rgb.read(&s.gpu).unwrap());
+    let e_rows = scratch_rows(&s, region::E);
+    let a1_rows = scratch_rows(&s, region::A1);
+    let xc_rows = scratch_rows(&s, region::XC);
+    let ac2_rows = scratch_rows(&s, region::AC2);
+    for (i, smp) in s.samples.iter().enumerate() {
+        let t = m.forward(pos(smp), dir(smp));
+        // Encoding (GPU) == reference, padding zero.
+        assert_close(&format!("e[{i}]"), &scratch_vec(&e_rows, i), &t.enc.e, 1e-5, 1e-5);
+        // Density MLP on the GPU's own encoding == reference.
+        let (a1, h) = m.density_mlp(&scratch_vec(&e_rows, i));
+        assert_close(&format!("a1[{i}]"), &scratch_vec(&a1_rows, i), &a1, 1e-5, 1e-5);
+        let xc = scratch_vec(&xc_rows, i);
+        assert_close(&format!("h[{i}]"), &xc[..16], &h, 1e-5, 1e-5);
+        assert_close(&format!("xc[{i}]"), &xc, &t.xc, 1e-5, 1e-5);
+        // Colour MLP on the GPU's own input == reference.
+        let (_, ac2, o) = m.color_mlp(&xc);
+        assert_close(&format!("ac2[{i}]"), &scratch_vec(&ac2_rows, i), &ac2, 1e-5, 1e-5);
+        let want_rgb = o.map(|v| 1.0 / (1.0 + (-v).exp()));
+        assert_close(&format!("rgb[{i}]"), &to_f64(&rgb[i][..3]), &want_rgb, 1e-5, 1e-5);
+        assert_close(&format!("sigma[{i}]"), &[density[i] as f64], &[t.sigma], 1e-5, 1e-5);
+        assert_eq!(t.enc.inside, t.sigma > 0.0);
+    }
+    // Samples past count are untouched.
+    assert!(density[n..].iter().all(|&v| v == 0.0));
+}
+
+// ---------------------------------------------------------------- MLP gradients
+
+#[test]
+fn field_grid_mlp_gradients_match_finite_differences() {
+    // Colour-only and density-only losses isolate each MLP (first-order path).
+    let n = 40;
+    for (wa, wb, name) in [(0.0, 1.0, "rgb"), (1.0, 0.0, "density")] {
+        let mut s = setup(&small_config(), n, 64, 21, false);
+        let m = s.field.reference(&s.gpu).unwrap();
+        let w = LossWeights::random(n, 22, wa, wb, 0.0);
+        s.field.zero_grads(&s.gpu);
+        s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), false).unwrap();
+        let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
+        let cpu = w.cpu_grads(&m, &s.samples, false);
+        assert_close(&format!("{name}: mlp grads GPU vs CPU"), &gpu_mlp, &cpu.mlp, 2e-4, 2e-3);
+        // Reference analytic gradient vs finite differences for a spread of weights of
+        // every matrix.
+        let mut mlp = m.mlp.clone();
+        let mut r = rng(23);
+        for (mat, off, rows, cols, stride) in m.layout.matrices() {
+            for _ in 0..6 {
+                let idx = off + (r.next_u64() as usize % rows) * stride + r.next_u64() as usize % cols;
+                let fd = central_diff(&mut mlp, idx, 1e-6, |p| {
+                    w.loss(&GridModel { mlp: p.to_vec(), ..m.clone() }, &s.samples)
+                });
+                let scale = cpu.mlp.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                assert!(
+                    (fd - cpu.mlp[idx]).abs() <= 1e-6 * scale + 1e-5 * fd.abs(),
+                    "{name}: {mat}[{idx}]: fd {fd} analytic {} (GPU {})",
+                    cpu.mlp[idx],
+                    gpu_mlp[idx]
+                );
+            }
+        }
+        // Input gradient of the colour MLP (dL/dh, stored by the backward) vs finite
+        // differences of the reference colour MLP.
+        if name == "rgb" {
+            let dh_rows = scratch_rows(&s, region::DH);
+            let xc_rows = scratch_rows(&s, region::XC);
+            for i in [0usize, 7, 13] {
+                let mut xc = scratch_vec(&xc_rows, i);
+                let got = scratch_vec(&dh_rows, i);
+                for k in 0..16 {
+                    let fd = central_diff(&mut xc, k, 1e-6, |x| {
+                        let (_, _, o) = m.color_mlp(x);
+                        (0..3).map(|c| w.b[i][c] as f64 / (1.0 + (-o[c]).exp())).sum()
+                    });
+                    assert!((fd - got[k]).abs() <= 1e-4 * (1.0 + fd.abs()), "dL/dh[{i}][{k}]: fd {fd} GPU {}", got[k]);
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------- normals
+
+#[test]
+fn field_grid_normals_match_finite_differences_and_gpu() {
+    let n = 96;
+    let mut s = setup(&small_config(), n, 128, 31, false);
+    let m = s.field.reference(&s.gpu).unwrap();
+    let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+    s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+    let normals = out.normal.read(&s.gpu).unwrap();
+    let eps = 1e-7;
+    let mut checked = 0;
+    for (i, smp) in s.samples.iter().enumerate() {
+        let x = pos(smp);
+        let t = m.forward(x, dir(smp));
+        // GPU normals == reference analytic normals (unit or zero).
+        assert_close(&format!("normal[{i}]"), &to_f64(&normals[i][..3]), &t.normal, 1e-4, 1e-4);
+        if !t.enc.inside {
+            assert_eq!(t.normal, [0.0; 3]);
+            continue;
+        }
+        let len: f64 = t.normal.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!((len - 1.0).abs() < 1e-12);
+        // Reference analytic gradient vs central differences of the density.
+        let grad: [f64; 3] = std::array::from_fn(|d| {
+            let (mut xp, mut xm) = (x, x);
+            xp[d] += eps;
+            xm[d] -= eps;
+            (m.density(xp) - m.density(xm)) / (2.0 * eps)
+        });
+        for d in 0..3 {
+            assert!((grad[d] - t.u[d]).abs() <= 1e-5 * (1.0 + t.u[d].abs()), "grad sigma[{i}]: fd {grad:?} analytic {:?}", t.u);
+        }
+        let gl = grad.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for d in 0..3 {
+            assert!((-grad[d] / gl - t.normal[d]).abs() < 1e-5);
+        }
+        checked += 1;
+    }
+    assert!(checked > n / 2);
+}
+
+// ---------------------------------------------------------------- end to end
+
+/// L = sum_i a_i sigma_i + <b_i, rgb_i> + <c_i, n_i>: GPU backward (second order
+/// through the normals) vs the reference backward for every parameter, and the
+/// reference vs central differences of the reference forward on a random subset.
+fn end_to_end(disable_float_atomics: bool, n: usize, fd_checks: usize) {
+    let mut s = setup(&small_config(), n, 128, 41, disable_float_atomics);
+    let m = s.field.reference(&s.gpu).unwrap();
+    let w = LossWeights::random(n, 42, 1.0, 1.0, 1.0);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), true).unwrap();
+    let gpu_table = to_f64(&s.field.table_grad.read(&s.gpu).unwrap());
+    let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
+    let cpu = w.cpu_grads(&m, &s.samples, true);
+    assert_close("table grads GPU vs CPU", &gpu_table, &cpu.table, 3e-4, 3e-3);
+    assert_close("mlp grads GPU vs CPU", &gpu_mlp, &cpu.mlp, 3e-4, 3e-3);
+    // The normal path matters: without it the gradients differ.
+    let first_order = w.cpu_grads(&m, &s.samples, false);
+    let diff = cpu.table.iter().zip(&first_order.table).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    assert!(diff > 1e-2 * cpu.table.iter().fold(0.0f64, |a, v| a.max(v.abs())), "normal path has no effect");
+    let w1_diff = (0..m.layout.in_dim).map(|k| (cpu.mlp[m.layout.w1 + k] - first_order.mlp[m.layout.w1 + k]).abs());
+    assert!(w1_diff.fold(0.0, f64::max) > 0.0);
+
+    // Finite differences: touched table entries and weights of every matrix.
+    let mut r = rng(43);
+    let touched: Vec<usize> = (0..cpu.table.len()).filter(|&i| cpu.table[i] != 0.0).collect();
+    assert!(!touched.is_empty());
+    let tscale = cpu.table.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let mut table = m.table.clone();
+    for _ in 0..fd_checks {
+        let idx = touched[r.next_u64() as usize % touched.len()];
+        let fd = central_diff(&mut table, idx, 1e-6, |t| w.loss(&GridModel { table: t.to_vec(), ..m.clone() }, &s.samples));
+        assert!(
+            (fd - cpu.table[idx]).abs() <= 1e-6 * tscale + 1e-5 * fd.abs(),
+            "table[{idx}]: fd {fd} analytic {} GPU {}",
+            cpu.table[idx],
+            gpu_table[idx]
+        );
+    }
+    let mscale = cpu.mlp.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let mut mlp = m.mlp.clone();
+    for (mat, off, rows, cols, stride) in m.layout.matrices() {
+        // Row 0 of W2 carries the normal path's dW2 term: always include it.
+        let mut idxs: Vec<usize> = (0..fd_checks / 4 + 1)
+            .map(|_| off + (r.next_u64() as usize % rows) * stride + r.next_u64() as usize % cols)
+            .collect();
+        if mat == "grid.density_mlp.1" {
+            idxs.push(off + r.next_u64() as usize % cols);
+        }
+        for idx in idxs {
+            let fd = central_diff(&mut mlp, idx, 1e-6, |p| w.loss(&GridModel { mlp: p.to_vec(), ..m.clone() }, &s.samples));
+            assert!(
+                (fd - cpu.mlp[idx]).abs() <= 1e-6 * mscale + 1e-5 * fd.abs(),
+                "{mat}[{idx}]: fd {fd} analytic {} GPU {}",
+                cpu.mlp[idx],
+                gpu_mlp[idx]
+            );
+        }
+    }
+}
+
+#[test]
+fn field_grid_end_to_end_gradients_with_normals() {
+    end_to_end(false, 64, 24);
+}
+
+#[test]
+fn field_grid_end_to_end_gradients_compare_exchange_atomics() {
+    end_to_end(true, 48, 4);
+}
+
+// ---------------------------------------------------------------- options
+
+#[test]
+fn field_grid_level_annealing_masks_levels() {
+    let n = 48;
+    let mut s = setup(&small_config(), n, 64, 51, false);
+    s.field.set_active_levels(2);
+    assert_eq!((s.field.active_levels(), s.field.encoding_levels()), (2, 5));
+    let m = s.field.reference(&s.gpu).unwrap();
+    assert_eq!(m.active_levels, 2);
+    let out = FieldOutputs::new(&s.gpu, 64).unwrap();
+    s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+    let w = LossWeights::random(n, 52, 1.0, 1.0, 1.0);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), true).unwrap();
+    let e_rows = scratch_rows(&s, region::E);
+    for i in 0..n {
+        let e = scratch_vec(&e_rows, i);
+        assert!(e[4..].iter().all(|&v| v == 0.0), "inactive levels must encode to 0");
+    }
+    let gpu_table = to_f64(&s.field.table_grad.read(&s.gpu).unwrap());
+    let first_inactive = 2 * m.layout.levels[2].offset as usize;
+    assert!(gpu_table[first_inactive..].iter().all(|&v| v == 0.0), "inactive levels get no gradient");
+    assert!(gpu_table[..first_inactive].iter().any(|&v| v != 0.0));
+    let cpu = w.cpu_grads(&m, &s.samples, true);
+    assert_close("annealed table grads", &gpu_table, &cpu.table, 3e-4, 3e-3);
+    let normals = out.normal.read(&s.gpu).unwrap();
+    for (i, smp) in s.samples.iter().enumerate() {
+        let t = m.forward(pos(smp), dir(smp));
+        assert_close("annealed normal", &to_f64(&normals[i][..3]), &t.normal, 1e-4, 1e-4);
+    }
+    // All levels again: level 4 contributes.
+    s.field.set_active_levels(99);
+    assert_eq!(s.field.active_levels(), 5);
+}
+
+#[test]
+fn field_grid_density_queries_match_forward_and_softplus() {
+    for act in [DensityActivation::TruncExp, DensityActivation::Softplus] {
+        let cfg = GridConfig { density_activation: act, ..small_config() };
+        let n = 70;
+        let mut s = setup(&cfg, n, 128, 61, false);
+        let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+        s.field.forward(&s.gpu, &s.batch, &out, false).unwrap();
+        let points: Vec<[f32; 4]> = s.samples.iter().map(|p| [p.pos[0], p.pos[1], p.pos[2], 0.0]).collect();
+        let pbuf = GpuBuffer::from_slice(&s.gpu, "points", &points).unwrap();
+        let dbuf = GpuBuffer::<f32>::zeros(&s.gpu, "densities", n).unwrap();
+        s.field.density(&s.gpu, &pbuf, n as u32, &dbuf).unwrap();
+        let (q, f) = (dbuf.read(&s.gpu).unwrap(), out.density.read(&s.gpu).unwrap());
+        let m = s.field.reference(&s.gpu).unwrap();
+        for i in 0..n {
+            assert_eq!(q[i], f[i], "{act:?}: query vs forward density at {i}");
+            let want = m.density(pos(&s.samples[i]));
+            assert!((q[i] as f64 - want).abs() <= 1e-5 * (1.0 + want), "{act:?}: {} vs {want}", q[i]);
+        }
+        // No normals requested: the normal buffer is untouched.
+        assert!(out.normal.read(&s.gpu).unwrap().iter().all(|v| *v == [0.0; 4]));
+        // Softplus end to end through the reference (first and second order).
+        if act == DensityActivation::Softplus {
+            let m = s.field.reference(&s.gpu).unwrap();
+            let w = LossWeights::random(n, 62, 1.0, 0.5, 1.0);
+            s.field.zero_grads(&s.gpu);
+            s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), true).unwrap();
+            let cpu = w.cpu_grads(&m, &s.samples, true);
+            let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
+            assert_close("softplus mlp grads", &gpu_mlp, &cpu.mlp, 3e-4, 3e-3);
+            let mut mlp = m.mlp.clone();
+            let idx = m.layout.w2 + 3;
+            let fd = central_diff(&mut mlp, idx, 1e-6, |p| w.loss(&GridModel { mlp: p.to_vec(), ..m.clone() }, &s.samples));
+            assert!((fd - cpu.mlp[idx]).abs() < 1e-6 * (1.0 + fd.abs()), "softplus W2[0,3]: fd {fd} vs {}", cpu.mlp[idx]);
+        }
+    }
+}
+
+#[test]
+fn field_grid_backward_chunks_and_accumulation() {
+    // A 64-sample chunk over 200 samples (capacity 256, count 200) must give the same
+    // gradients as one chunk; two backward calls add up.
+    let n = 200;
+    let cfg = GridConfig { backward_chunk: 64, hidden_width: 16, ..small_config() };
+    let mut s = setup(&cfg, n, 256, 71, false);
+    let w = LossWeights::random(n, 72, 1.0, 1.0, 1.0);
+    let grads = w.upload(&s.gpu, 256);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &grads, true).unwrap();
+    assert_eq!(s.field.scratch.as_ref().unwrap().chunk, 64);
+    let chunked = (s.field.table_grad.read(&s.gpu).unwrap(), s.field.mlp_grad.read(&s.gpu).unwrap());
+    let m = s.field.reference(&s.gpu).unwrap();
+    let cpu = w.cpu_grads(&m, &s.samples, true);
+    assert_close("chunked table", &to_f64(&chunked.0), &cpu.table, 3e-4, 3e-3);
+    assert_close("chunked mlp", &to_f64(&chunked.1), &cpu.mlp, 3e-4, 3e-3);
+    s.field.backward(&s.gpu, &s.batch, &grads, true).unwrap();
+    let twice = s.field.mlp_grad.read(&s.gpu).unwrap();
+    let doubled: Vec<f64> = cpu.mlp.iter().map(|v| 2.0 * v).collect();
+    assert_close("accumulated mlp", &to_f64(&twice), &doubled, 3e-4, 3e-3);
+    s.field.zero_grads(&s.gpu);
+    assert!(s.field.mlp_grad.read(&s.gpu).unwrap().iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn field_grid_export_import_roundtrip_and_param_groups() {
+    let gpu = test_gpu(false);
+    let cfg = small_config();
+    let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
+    let arrays = field.export(&gpu).unwrap();
+    let names: Vec<&str> = arrays.iter().map(|a| a.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [TABLE_NAME, "grid.density_mlp.0", "grid.density_mlp.1", "grid.color_mlp.0", "grid.color_mlp.1", "grid.color_mlp.2"]
+    );
+    assert_eq!(arrays[1].shape, vec![64, 10]);
+    assert_eq!(arrays[5].shape, vec![3, 64]);
+    let mut changed = arrays.clone();
+    changed.iter_mut().for_each(|a| a.data.iter_mut().enumerate().for_each(|(i, v)| *v = i as f32 * 1e-3));
+    field.import(&gpu, &changed).unwrap();
+    assert_eq!(field.export(&gpu).unwrap(), changed);
+    // Padding stays zero in the GPU layout.
+    let mlp = field.mlp.read(&gpu).unwrap();
+    let lay = field.layout().clone();
+    assert!((0..lay.width).all(|j| mlp[lay.w1 + j * lay.in_pad + 10] == 0.0));
+    assert!(mlp[lay.c3 + 3 * lay.width..].iter().all(|&v| v == 0.0));
+    // Errors: a missing array, a wrong length.
+    assert!(matches!(field.import(&gpu, &changed[1..]), Err(FieldError::Import(_))));
+    let mut short = changed.clone();
+    short[2].data.pop();
+    assert!(matches!(field.import(&gpu, &short), Err(FieldError::Import(_))));
+    // Parameter groups for the optimizer.
+    let groups = field.params();
+    assert_eq!(groups.len(), 2);
+    assert_eq!((groups[0].name, groups[0].params.len(), groups[0].eps), (TABLE_NAME, lay.table_entries * 2, Some(1e-15)));
+    assert!(groups[0].skip_zero_grad && !groups[1].skip_zero_grad);
+    assert_eq!((groups[1].name, groups[1].params.len()), (MLP_NAME, lay.mlp_len));
+    assert!(groups.iter().all(|g| g.grads.len() == g.params.len()));
+    assert_eq!(field.n_params(), lay.table_entries * 2 + lay.mlp_len);
+    assert!(GridField::new(&gpu, &cfg, [Vec3::ONE, Vec3::ZERO]).is_err());
+}
+
+// ---------------------------------------------------------------- throughput
+
+/// Forward / backward samples per second at the default configuration (2^16
+/// samples). Run with `cargo test -p edgenerf-engine --release field_grid_throughput -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn field_grid_throughput() {
+    let gpu = test_gpu(false);
+    let cfg = GridConfig::default();
+    let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
+    let n = 1usize << 16;
+    let samples = random_samples(n, 1);
+    let batch = SampleBatch::new(&gpu, 1, n as u32).unwrap();
+    batch.samples.write(&gpu, &samples);
+    batch.count.write(&gpu, &[n as u32, n as u32]);
+    let out = FieldOutputs::new(&gpu, n as u32).unwrap();
+    let w = LossWeights::random(n, 2, 1.0, 1.0, 1.0);
+    let grads = w.upload(&gpu, n as u32);
+    let time = |label: &str, f: &mut dyn FnMut()| {
+        f();
+        gpu.wait().unwrap();
+        let reps = 3;
+        let t0 = std::time::Instant::now();
+        for _ in 0..reps {
+            f();
+        }
+        gpu.wait().unwrap();
+        let dt = t0.elapsed().as_secs_f64() / reps as f64;
+        eprintln!("{label}: {:.1} ms, {:.3} M samples/s", dt * 1e3, n as f64 / dt / 1e6);
+    };
+    eprintln!("adapter: {}", gpu.adapter());
+    time("forward (no normals)", &mut || field.forward(&gpu, &batch, &out, false).unwrap());
+    time("forward (normals)", &mut || field.forward(&gpu, &batch, &out, true).unwrap());
+    time("backward (first order)", &mut || field.backward(&gpu, &batch, &grads, false).unwrap());
+    time("backward (with normals)", &mut || field.backward(&gpu, &batch, &grads, true).unwrap());
+    let pts = GpuBuffer::from_slice(&gpu, "pts", &samples.iter().map(|s| [s.pos[0], s.pos[1], s.pos[2], 0.0]).collect::<Vec<_>>()).unwrap();
+    let dens = GpuBuffer::<f32>::zeros(&gpu, "dens", n).unwrap();
+    time("density queries", &mut || field.density(&gpu, &pts, n as u32, &dens).unwrap());
+}

@@ -1,0 +1,103 @@
+//! The field room: what maps a sample (position, direction) to density, colour and an
+//! analytic normal, with the exact backward pass to its parameters.
+//!
+//! Owns the backend-neutral [`Field`] trait and its backends: [`grid`] (multiresolution
+//! hash encoding + tiny MLPs, Instant-NGP style). A NeRF-MLP backend implements the
+//! same trait; nothing outside this room knows which backend runs.
+//!
+//! # Contract of a field (every backend)
+//! * Inputs are the [`SampleBatch`] of the sampler: one value per sample, dispatched
+//!   over the batch capacity, samples past `count[0]` untouched. Positions are in the
+//!   field's space (world, or NDC for forward-facing scenes), directions unit vectors.
+//! * [`Field::forward`] writes post-activation density `sigma >= 0`, colour in
+//!   `[0, 1]` and (if asked) the unit normal `n = -grad_x sigma / |grad_x sigma|`
+//!   (zero where the gradient vanishes) into [`FieldOutputs`].
+//! * [`Field::backward`] takes `dL/dsigma`, `dL/drgb` and `dL/dn` per sample
+//!   ([`FieldGrads`]) and **adds** exact parameter gradients into the gradient buffers
+//!   of [`Field::params`] (second order through the normals when asked). It recomputes
+//!   what it needs from the parameters, so it only requires that the parameters did not
+//!   change since the forward pass whose outputs the gradients refer to. The caller
+//!   clears gradients with [`Field::zero_grads`] before a step.
+//! * Parameters live on the GPU in `f32` buffers, grouped for the optimizer
+//!   ([`ParamGroup`], with per-group hints); [`Field::export`] / [`Field::import`]
+//!   move them to and from the host as named arrays (checkpoints).
+//! * GPU work is queued, never waited for (readbacks wait).
+
+pub mod grid;
+
+pub use grid::{DensityActivation, GridConfig, GridField};
+
+use crate::gpu::{Gpu, GpuBuffer, GpuError};
+pub use crate::optim::ParamGroup;
+use crate::samples::{FieldGrads, FieldOutputs, SampleBatch};
+
+/// A named host-side parameter array (row-major `shape`), for checkpoints.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NamedArray {
+    pub name: String,
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// Errors of the field room beyond the GPU's own.
+#[derive(Debug, thiserror::Error)]
+pub enum FieldError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("invalid field configuration: {0}")]
+    Config(String),
+    #[error("parameters do not fit this field: {0} (was the checkpoint written with another field configuration?)")]
+    Import(String),
+}
+
+/// A radiance field with analytic normals and an exact backward pass. See the module doc.
+pub trait Field {
+    /// Short backend name for logs and checkpoints (`"grid"`, `"mlp"`).
+    fn kind(&self) -> &'static str;
+
+    /// Post-activation densities of `count` points (`xyz` of each `[f32; 4]`, `w`
+    /// ignored) into `out[..count]`: occupancy-grid queries, no colour, no normals.
+    fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
+    -> Result<(), GpuError>;
+
+    /// Density, colour and (when `normals`) unit normals of every sample of `batch`.
+    /// Without `normals`, `out.normal` is left untouched.
+    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError>;
+
+    /// Adds `dL/dparams` for the per-sample output gradients `grads` into the gradient
+    /// buffers; `normal_grads` enables the second-order path through the normals
+    /// (`grads.normal` is ignored without it).
+    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
+    -> Result<(), GpuError>;
+
+    /// Parameter groups for the optimizer, in a fixed order with unique names.
+    fn params(&self) -> Vec<ParamGroup<'_>>;
+
+    /// Total number of scalar parameters.
+    fn n_params(&self) -> usize {
+        self.params().iter().map(|g| g.params.len()).sum()
+    }
+
+    /// Clears every gradient buffer (queued).
+    fn zero_grads(&self, gpu: &Gpu);
+
+    /// Reads the parameters back as named arrays (waits for queued work).
+    fn export(&self, gpu: &Gpu) -> Result<Vec<NamedArray>, GpuError>;
+
+    /// Overwrites the parameters from arrays written by [`Field::export`] of a field of
+    /// the same configuration; every array must be present with its exact length.
+    fn import(&mut self, gpu: &Gpu, arrays: &[NamedArray]) -> Result<(), FieldError>;
+
+    /// Number of levels of the coarse-to-fine schedule (grid levels; frequency bands of
+    /// a positional encoding). 0 when the backend has no such schedule.
+    fn encoding_levels(&self) -> u32 {
+        0
+    }
+
+    /// Enables only the first `n` encoding levels (the others contribute zero features
+    /// and receive zero gradients); `n >= encoding_levels()` enables all. Set per step
+    /// by the trainer; a no-op for backends without levels.
+    fn set_active_levels(&mut self, n: u32) {
+        let _ = n;
+    }
+}

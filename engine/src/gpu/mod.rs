@@ -1,0 +1,236 @@
+//! The compute runtime: one [`Gpu`] context on wgpu/Vulkan, typed buffers, kernels.
+//!
+//! Owns adapter selection, device creation, the pipeline cache and the float-atomic
+//! path. Every other room reaches the GPU only through this module.
+//!
+//! # Adapter selection
+//! 1. `GpuOptions::adapter` (the CLI's `--adapter`), else the `WGPU_ADAPTER_NAME`
+//!    environment variable: the first adapter whose name contains it
+//!    (case-insensitive); an error lists the adapters present when none matches.
+//! 2. Otherwise a discrete NVIDIA GPU, then any discrete GPU, then an integrated one,
+//!    then a CPU implementation (Mesa lavapipe, "llvmpipe").
+//!
+//! Only the Vulkan backend is enabled (`WGPU_BACKEND` may override, for experiments).
+//!
+//! # Invariants
+//! * The device is created with the adapter's own limits (so lavapipe's 128 MiB
+//!   storage bindings and NVIDIA's larger ones are both usable) and with
+//!   `SHADER_FLOAT32_ATOMIC` when the adapter has it and it is not disabled.
+//! * [`Gpu::float_atomics`] says which atomic path kernels are built for; the choice
+//!   is made once per context and applied at pipeline build time (see [`kernel`]).
+//! * Nothing here assumes a subgroup size (lavapipe runs 8 lanes, NVIDIA 32).
+
+mod buffer;
+pub mod selftest;
+pub mod kernel;
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+pub use buffer::GpuBuffer;
+pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
+
+/// What to install when no Vulkan driver is found.
+pub const DRIVER_HINT: &str = "install a Vulkan driver: on Debian/Ubuntu without a GPU run \
+`apt-get install mesa-vulkan-drivers libvulkan1` (software Vulkan, lavapipe); with an \
+NVIDIA GPU install the NVIDIA driver with its Vulkan ICD";
+
+/// Errors of the compute runtime.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error("no Vulkan adapter found: {DRIVER_HINT}")]
+    NoAdapter,
+    #[error("no Vulkan adapter matches {wanted:?} (from {source_of_name}); adapters present: {available}")]
+    AdapterNotFound { wanted: String, source_of_name: &'static str, available: String },
+    #[error("could not create a device on adapter {adapter:?}: {message}")]
+    RequestDevice { adapter: String, message: String },
+    #[error("kernel {kernel} does not compile: {message}")]
+    Shader { kernel: String, message: String },
+    #[error("no kernel named {0:?} under kernels/")]
+    UnknownKernel(String),
+    #[error("buffer {label:?} needs {bytes} bytes, above this device's storage binding limit of {limit} bytes")]
+    BufferTooLarge { label: String, bytes: u64, limit: u64 },
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+    #[error("GPU device error: {0}")]
+    Device(String),
+}
+
+/// How to pick and configure the GPU.
+#[derive(Clone, Debug, Default)]
+pub struct GpuOptions {
+    /// Substring of the adapter name to use (overrides `WGPU_ADAPTER_NAME`).
+    pub adapter: Option<String>,
+    /// Build kernels for the compare-exchange float-add path even when the adapter
+    /// supports `SHADER_FLOAT32_ATOMIC` (tests use this to cover both paths).
+    pub disable_float_atomics: bool,
+}
+
+/// Facts about the adapter in use, for logs, `edgenerf info` and benchmark rows.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct AdapterSummary {
+    pub name: String,
+    pub device_type: String,
+    pub driver: String,
+    pub driver_info: String,
+    pub backend: String,
+    pub float_atomics: bool,
+    pub max_storage_binding_bytes: u64,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({}, {} {} {}; float atomics: {}; max storage binding {} MiB)",
+            self.name,
+            self.device_type,
+            self.backend,
+            self.driver,
+            self.driver_info,
+            if self.float_atomics { "native" } else { "compare-exchange fallback" },
+            self.max_storage_binding_bytes >> 20
+        )
+    }
+}
+
+/// The GPU context: device, queue and the kernels built for it. Cheap to clone.
+#[derive(Clone)]
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    summary: Arc<AdapterSummary>,
+    limits: wgpu::Limits,
+    kernels: Arc<Mutex<HashMap<KernelSpec, Arc<Kernel>>>>,
+}
+
+const NVIDIA_VENDOR_ID: u32 = 0x10de;
+
+fn device_type_rank(info: &wgpu::AdapterInfo) -> u32 {
+    use wgpu::DeviceType::*;
+    match info.device_type {
+        DiscreteGpu if info.vendor == NVIDIA_VENDOR_ID => 0,
+        DiscreteGpu => 1,
+        IntegratedGpu => 2,
+        VirtualGpu => 3,
+        Cpu => 4,
+        Other => 5,
+    }
+}
+
+impl Gpu {
+    /// Opens the adapter chosen as the module doc describes.
+    pub fn new(opts: &GpuOptions) -> Result<Gpu, GpuError> {
+        let backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN);
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = backends;
+        let instance = wgpu::Instance::new(desc);
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        if adapters.is_empty() {
+            return Err(GpuError::NoAdapter);
+        }
+        let wanted = match (&opts.adapter, std::env::var("WGPU_ADAPTER_NAME")) {
+            (Some(name), _) => Some((name.clone(), "--adapter")),
+            (None, Ok(name)) if !name.is_empty() => Some((name, "WGPU_ADAPTER_NAME")),
+            _ => None,
+        };
+        let adapter = match wanted {
+            Some((name, source_of_name)) => {
+                let lower = name.to_lowercase();
+                let pos = adapters.iter().position(|a| a.get_info().name.to_lowercase().contains(&lower));
+                match pos {
+                    Some(i) => adapters.swap_remove(i),
+                    None => {
+                        let available = adapters.iter().map(|a| format!("{:?}", a.get_info().name)).collect::<Vec<_>>().join(", ");
+                        return Err(GpuError::AdapterNotFound { wanted: name, source_of_name, available });
+                    }
+                }
+            }
+            None => {
+                adapters.sort_by_key(|a| device_type_rank(&a.get_info()));
+                adapters.swap_remove(0)
+            }
+        };
+        Self::from_adapter(adapter, opts)
+    }
+
+    fn from_adapter(adapter: wgpu::Adapter, opts: &GpuOptions) -> Result<Gpu, GpuError> {
+        let info = adapter.get_info();
+        let float_atomics =
+            !opts.disable_float_atomics && adapter.features().contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let required_features =
+            if float_atomics { wgpu::Features::SHADER_FLOAT32_ATOMIC } else { wgpu::Features::empty() };
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("edgenerf"),
+            required_features,
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::RequestDevice { adapter: info.name.clone(), message: e.to_string() })?;
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            device_type: format!("{:?}", info.device_type),
+            driver: info.driver.clone(),
+            driver_info: info.driver_info.clone(),
+            backend: format!("{:?}", info.backend),
+            float_atomics,
+            max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
+        };
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default() })
+    }
+
+    /// The adapter in use.
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.summary
+    }
+
+    /// Whether kernels use native `atomic<f32>` adds (else a compare-exchange loop).
+    pub fn float_atomics(&self) -> bool {
+        self.summary.float_atomics
+    }
+
+    /// The device limits (equal to the adapter's).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// Returns the compute kernel for `spec`, building and caching it on first use.
+    pub fn kernel(&self, spec: &KernelSpec) -> Result<Arc<Kernel>, GpuError> {
+        if let Some(k) = self.kernels.lock().unwrap().get(spec) {
+            return Ok(k.clone());
+        }
+        let kernel = Arc::new(Kernel::build(self, spec)?);
+        self.kernels.lock().unwrap().insert(spec.clone(), kernel.clone());
+        Ok(kernel)
+    }
+
+    /// Starts recording a sequence of dispatches and copies.
+    pub fn encoder(&self) -> Encoder<'_> {
+        Encoder::new(self)
+    }
+
+    /// Blocks until all submitted work is done.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Device(e.to_string()))
+    }
+}
+
+/// Opens the default GPU for tests, once per test process; panics with the driver
+/// hint when none is available (the test suite needs a Vulkan driver, lavapipe is
+/// enough).
+pub fn test_gpu(disable_float_atomics: bool) -> Gpu {
+    static NATIVE: std::sync::OnceLock<Gpu> = std::sync::OnceLock::new();
+    static FALLBACK: std::sync::OnceLock<Gpu> = std::sync::OnceLock::new();
+    let cell = if disable_float_atomics { &FALLBACK } else { &NATIVE };
+    cell.get_or_init(|| {
+        Gpu::new(&GpuOptions { adapter: None, disable_float_atomics })
+            .unwrap_or_else(|e| panic!("tests need a Vulkan device: {e}"))
+    })
+    .clone()
+}

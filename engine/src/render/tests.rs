@@ -1,0 +1,638 @@
+//! GPU tests of the render room against its CPU reference (`reference.rs`).
+//!
+//! Tolerances, stated once:
+//! * forward: `|gpu - ref| <= 1e-5 * m` per component, `m` the sum of the absolute
+//!   values of the terms summed into it (`sum_i w_i |x_i|`, plus `(1 - opacity) |bg|`
+//!   for colour), floored at 1e-12 (so empty and fully transparent rays must be exact);
+//!   per-sample weights `|gpu - ref| <= 1e-5 * max(w_ref, 1e-7)`.
+//! * backward vs central differences of the `f64` reference (`h = 1e-6 max(1, |x|)`,
+//!   accurate to ~1e-10): `dL/dc`, `dL/dn`: `<= 1e-5 |fd| + 1e-7`; `dL/dsigma`:
+//!   `<= 1e-4 |fd| + 2e-6 dt S`, where `S = sum_j w_j |u_j| + |total|` bounds the
+//!   cancellation in the suffix sum `total - prefix` (float precision of the ray's terms).
+//! * Rays whose `K` differs between GPU (`f32`) and reference (`f64`) are allowed only when
+//!   a transmittance at the cut lies within 1e-4 relative of the threshold.
+
+use super::reference::{self, RefRay, RefSample};
+use super::*;
+use crate::gpu::test_gpu;
+use crate::samples::{GpuSample, SampleRange};
+
+/// SplitMix64: deterministic test data without a dependency.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.uniform()
+    }
+    fn below(&mut self, n: u32) -> u32 {
+        (self.next_u64() % n as u64) as u32
+    }
+}
+
+/// A batch on the host, in the kernels' layout.
+#[derive(Clone)]
+struct HostBatch {
+    ranges: Vec<SampleRange>,
+    samples: Vec<GpuSample>,
+    density: Vec<f32>,
+    rgb: Vec<[f32; 4]>,
+    normal: Vec<[f32; 4]>,
+}
+
+impl HostBatch {
+    fn n_rays(&self) -> u32 {
+        self.ranges.len() as u32
+    }
+    fn capacity(&self) -> u32 {
+        self.density.len() as u32
+    }
+    fn ray(&self, r: usize) -> Vec<RefSample> {
+        reference::gather(self.ranges[r], &self.samples, &self.density, &self.rgb, &self.normal)
+    }
+    /// Samples that belong to no range.
+    fn in_range(&self) -> Vec<bool> {
+        let mut v = vec![false; self.density.len()];
+        for r in &self.ranges {
+            for s in r.start..r.start + r.count {
+                v[s as usize] = true;
+            }
+        }
+        v
+    }
+}
+
+/// Random rays: ~15% empty, up to `max_count` samples, random gaps between ranges
+/// (filled with garbage the kernels must not touch), densities from transparent to
+/// opaque, normals unit or zero, `w` components garbage.
+fn random_batch(rng: &mut Rng, n_rays: u32, max_count: u32) -> HostBatch {
+    let mut b = HostBatch { ranges: vec![], samples: vec![], density: vec![], rgb: vec![], normal: vec![] };
+    let garbage = |b: &mut HostBatch| {
+        b.samples.push(GpuSample { pos: [9.0; 3], t: -7.0, dir: [9.0; 3], dt: 5.0 });
+        b.density.push(1e3);
+        b.rgb.push([5.0; 4]);
+        b.normal.push([5.0; 4]);
+    };
+    for _ in 0..n_rays {
+        for _ in 0..rng.below(3) {
+            garbage(&mut b);
+        }
+        let count = if rng.uniform() < 0.15 { 0 } else { 1 + rng.below(max_count) };
+        b.ranges.push(SampleRange { start: b.density.len() as u32, count });
+        // Per-ray density scale: some rays stay transparent, some terminate early.
+        let scale = [0.3f32, 3.0, 30.0][rng.below(3) as usize];
+        let mut t = rng.range(0.1, 2.0);
+        for _ in 0..count {
+            let dt = rng.range(0.002, 0.08);
+            t += dt * 0.5;
+            b.samples.push(GpuSample { pos: [rng.uniform(); 3], t, dir: [0.0, 0.0, 1.0], dt });
+            t += dt * 0.5 + if rng.uniform() < 0.3 { rng.range(0.0, 0.1) } else { 0.0 };
+            let u = rng.uniform();
+            let sigma = if u < 0.25 { 0.0 } else if u < 0.9 { scale * rng.range(0.0, 1.0) } else { scale * rng.range(5.0, 50.0) };
+            b.density.push(sigma);
+            b.rgb.push([rng.uniform(), rng.uniform(), rng.uniform(), 7.0]);
+            let n = if rng.uniform() < 0.1 {
+                [0.0; 3]
+            } else {
+                let v = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
+                v.map(|x| x / l)
+            };
+            b.normal.push([n[0], n[1], n[2], -3.0]);
+        }
+    }
+    garbage(&mut b);
+    b
+}
+
+struct Uploaded {
+    batch: SampleBatch,
+    field: FieldOutputs,
+}
+
+fn upload(gpu: &Gpu, h: &HostBatch) -> Uploaded {
+    let batch = SampleBatch {
+        ranges: GpuBuffer::from_slice(gpu, "ranges", &h.ranges).unwrap(),
+        samples: GpuBuffer::from_slice(gpu, "samples", &h.samples).unwrap(),
+        count: GpuBuffer::from_slice(gpu, "count", &[h.capacity(), h.capacity()]).unwrap(),
+        n_rays: h.n_rays(),
+        capacity: h.capacity(),
+    };
+    let field = FieldOutputs {
+        density: GpuBuffer::from_slice(gpu, "density", &h.density).unwrap(),
+        rgb: GpuBuffer::from_slice(gpu, "rgb", &h.rgb).unwrap(),
+        normal: GpuBuffer::from_slice(gpu, "normal", &h.normal).unwrap(),
+    };
+    Uploaded { batch, field }
+}
+
+struct Forward {
+    out: RenderOutputs,
+    rays: Vec<RayOutput>,
+    aux: Vec<RayAux>,
+    weights: Vec<f32>,
+}
+
+fn run_forward(gpu: &Gpu, renderer: &Renderer, up: &Uploaded, seed: u32) -> Forward {
+    let out = RenderOutputs::new(gpu, up.batch.n_rays, Some(up.batch.capacity)).unwrap();
+    // Sentinels: samples outside every range must keep them.
+    out.weights.as_ref().unwrap().write(gpu, &vec![-1.0; up.batch.capacity as usize]);
+    let mut enc = gpu.encoder();
+    renderer.forward(&mut enc, &up.batch, &up.field, &out, seed).unwrap();
+    enc.submit();
+    let rays = out.rays.read(gpu).unwrap();
+    let aux = out.aux.read(gpu).unwrap();
+    let weights = out.weights.as_ref().unwrap().read(gpu).unwrap();
+    Forward { out, rays, aux, weights }
+}
+
+struct Grads {
+    density: Vec<f32>,
+    rgb: Vec<[f32; 4]>,
+    normal: Vec<[f32; 4]>,
+}
+
+fn run_backward(
+    gpu: &Gpu,
+    renderer: &Renderer,
+    up: &Uploaded,
+    fwd: &Forward,
+    d_rays: &[RayOutput],
+    init: &Grads,
+    accumulate: bool,
+) -> Grads {
+    let grads = FieldOutputs {
+        density: GpuBuffer::from_slice(gpu, "d density", &init.density).unwrap(),
+        rgb: GpuBuffer::from_slice(gpu, "d rgb", &init.rgb).unwrap(),
+        normal: GpuBuffer::from_slice(gpu, "d normal", &init.normal).unwrap(),
+    };
+    let d = GpuBuffer::from_slice(gpu, "d rays", d_rays).unwrap();
+    let mut enc = gpu.encoder();
+    renderer.backward(&mut enc, &up.batch, &up.field, &fwd.out, &d, &grads, accumulate).unwrap();
+    enc.submit();
+    Grads { density: grads.density.read(gpu).unwrap(), rgb: grads.rgb.read(gpu).unwrap(), normal: grads.normal.read(gpu).unwrap() }
+}
+
+fn sentinel_grads(n: usize) -> Grads {
+    Grads { density: vec![123.0; n], rgb: vec![[123.0; 4]; n], normal: vec![[123.0; 4]; n] }
+}
+
+fn backgrounds(cfg: &RenderConfig, seed: u32, n: u32) -> Vec<[f32; 3]> {
+    (0..n).map(|r| background_of(&cfg.background, seed, r)).collect()
+}
+
+fn reference_of(h: &HostBatch, cfg: &RenderConfig, seed: u32) -> Vec<RefRay> {
+    let bgs = backgrounds(cfg, seed, h.n_rays());
+    reference::forward_batch(&h.ranges, &h.samples, &h.density, &h.rgb, &h.normal, &bgs, cfg.transmittance_threshold)
+}
+
+/// Whether a `K` mismatch between GPU and reference is explained by the transmittance
+/// at the cut, `T_min(K_gpu, K_ref)` (compared with the threshold by one side and not the
+/// other), lying within 1e-4 relative of the threshold.
+fn near_threshold(r: &RefRay, threshold: f32, k_gpu: usize) -> bool {
+    let t = r.transmittance[r.n_contrib.min(k_gpu)];
+    threshold > 0.0 && (t / threshold as f64 - 1.0).abs() < 1e-4
+}
+
+/// Compares GPU forward outputs with the reference; returns the rays checked.
+fn check_forward(h: &HostBatch, cfg: &RenderConfig, seed: u32, fwd: &Forward) -> usize {
+    let refs = reference_of(h, cfg, seed);
+    let bgs = backgrounds(cfg, seed, h.n_rays());
+    let in_range = h.in_range();
+    let mut checked = 0;
+    let mut skipped = 0;
+    let mut worst = 0.0f64;
+    for (r, want) in refs.iter().enumerate() {
+        let got = &fwd.rays[r];
+        let aux = &fwd.aux[r];
+        assert_eq!(aux.background, bgs[r], "ray {r}: background");
+        if aux.n_contrib as usize != want.n_contrib {
+            assert!(
+                near_threshold(want, cfg.transmittance_threshold, aux.n_contrib as usize),
+                "ray {r}: GPU stopped after {} samples, reference after {} (T = {:?})",
+                aux.n_contrib,
+                want.n_contrib,
+                want.transmittance
+            );
+            skipped += 1;
+            continue;
+        }
+        let ray = h.ray(r);
+        let mag = |f: &dyn Fn(&RefSample) -> f64| -> f64 {
+            ray.iter().zip(&want.weights).map(|(s, w)| w * f(s).abs()).sum::<f64>()
+        };
+        let mut check = |what: &str, got: f32, want: f64, m: f64| {
+            let err = (got as f64 - want).abs();
+            let tol = 1e-5 * m.max(1e-12);
+            worst = worst.max(err / m.max(1e-12));
+            assert!(err <= tol, "ray {r} {what}: gpu {got} ref {want} (err {err:e}, tol {tol:e})");
+        };
+        for k in 0..3 {
+            let m_rgb = mag(&|s| s.rgb[k]) + (1.0 - want.opacity).abs() * bgs[r][k].abs() as f64;
+            check("rgb", got.rgb[k], want.rgb[k], m_rgb);
+            check("normal", got.normal[k], want.normal[k], mag(&|s| s.normal[k]));
+        }
+        check("opacity", got.opacity, want.opacity, want.opacity);
+        check("depth", got.depth, want.depth, mag(&|s| s.t));
+        let start = h.ranges[r].start as usize;
+        for (i, &w) in want.weights.iter().enumerate() {
+            let g = fwd.weights[start + i] as f64;
+            assert!((g - w).abs() <= 1e-5 * w.max(1e-7), "ray {r} sample {i}: weight gpu {g} ref {w}");
+            if i >= want.n_contrib {
+                assert_eq!(g, 0.0, "ray {r} sample {i}: weight past termination");
+            }
+        }
+        checked += 1;
+    }
+    for (s, inside) in in_range.iter().enumerate() {
+        if !inside {
+            assert_eq!(fwd.weights[s], -1.0, "sample {s} outside every range was written");
+        }
+    }
+    assert!(skipped * 100 <= refs.len(), "{skipped} of {} rays disagree on termination", refs.len());
+    eprintln!("forward: {checked} rays checked, {skipped} at the threshold skipped, worst relative error {worst:e}");
+    checked
+}
+
+#[test]
+fn forward_matches_reference_for_every_background() {
+    let gpu = test_gpu(false);
+    let mut rng = Rng(1);
+    let h = random_batch(&mut rng, 2000, 64);
+    let up = upload(&gpu, &h);
+    let configs = [
+        RenderConfig::default(),
+        RenderConfig { background: Background::Color { rgb: [0.25, 1.0, 0.5] }, transmittance_threshold: 1e-4 },
+        RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 },
+        RenderConfig { background: Background::Color { rgb: [1.0; 3] }, transmittance_threshold: 0.0 },
+        RenderConfig { background: Background::Black, transmittance_threshold: 1e-2 },
+    ];
+    for cfg in configs {
+        let renderer = Renderer::new(&gpu, cfg).unwrap();
+        let t0 = std::time::Instant::now();
+        let fwd = run_forward(&gpu, &renderer, &up, 77);
+        eprintln!("{cfg:?}: forward of {} rays, {} samples in {:?}", h.n_rays(), h.capacity(), t0.elapsed());
+        let checked = check_forward(&h, &cfg, 77, &fwd);
+        assert!(checked > 1900);
+        // Early termination must actually happen in this data set (threshold > 0).
+        let refs = reference_of(&h, &cfg, 77);
+        let cut = refs.iter().zip(&h.ranges).filter(|(r, range)| r.n_contrib < range.count as usize).count();
+        if cfg.transmittance_threshold > 0.0 {
+            assert!(cut > 100, "only {cut} rays terminate early");
+        } else {
+            assert_eq!(cut, 0);
+        }
+    }
+}
+
+#[test]
+fn random_background_differs_per_seed_and_ray() {
+    let gpu = test_gpu(false);
+    let cfg = RenderConfig { background: Background::Random, ..Default::default() };
+    let renderer = Renderer::new(&gpu, cfg).unwrap();
+    let h = HostBatch {
+        ranges: vec![SampleRange::default(); 4096],
+        samples: vec![GpuSample::default()],
+        density: vec![0.0],
+        rgb: vec![[0.0; 4]],
+        normal: vec![[0.0; 4]],
+    };
+    let up = upload(&gpu, &h);
+    let a = run_forward(&gpu, &renderer, &up, 1);
+    let b = run_forward(&gpu, &renderer, &up, 2);
+    let mut mean = [0.0f64; 3];
+    for r in 0..4096 {
+        // Empty rays show exactly their background, which is the host's hash.
+        assert_eq!(a.rays[r].rgb, random_background(1, r as u32));
+        assert_eq!(a.aux[r].background, a.rays[r].rgb);
+        assert_ne!(a.rays[r].rgb, b.rays[r].rgb);
+        for k in 0..3 {
+            let v = a.rays[r].rgb[k];
+            assert!((0.0..1.0).contains(&v));
+            mean[k] += v as f64 / 4096.0;
+        }
+    }
+    assert_ne!(a.rays[0].rgb, a.rays[1].rgb);
+    for m in mean {
+        assert!((m - 0.5).abs() < 0.02, "mean background {m}");
+    }
+}
+
+#[test]
+fn background_shows_only_through_transparency() {
+    let gpu = test_gpu(false);
+    let bg = [0.25, 0.5, 1.0];
+    let cfg = RenderConfig { background: Background::Color { rgb: bg }, ..Default::default() };
+    let renderer = Renderer::new(&gpu, cfg).unwrap();
+    let sample = |t: f32| GpuSample { pos: [0.0; 3], t, dir: [0.0, 0.0, 1.0], dt: 0.01 };
+    let c = [0.1, 0.7, 0.3, 0.0];
+    let n = [0.0, 0.6, 0.8, 0.0];
+    // Ray 0: one opaque sample then more (alpha = 1 exactly). Ray 1: empty.
+    // Ray 2: zero density everywhere. Ray 3: half transparent.
+    let h = HostBatch {
+        ranges: vec![
+            SampleRange { start: 0, count: 3 },
+            SampleRange { start: 3, count: 0 },
+            SampleRange { start: 3, count: 2 },
+            SampleRange { start: 5, count: 1 },
+        ],
+        samples: vec![sample(1.0), sample(1.1), sample(1.2), sample(2.0), sample(2.1), sample(3.0)],
+        density: vec![1e30, 5.0, 5.0, 0.0, 0.0, std::f32::consts::LN_2 / 0.01],
+        rgb: vec![c; 6],
+        normal: vec![n; 6],
+    };
+    let up = upload(&gpu, &h);
+    let fwd = run_forward(&gpu, &renderer, &up, 0);
+    // Opaque: exactly the sample's colour, no background.
+    assert_eq!(fwd.rays[0], RayOutput { rgb: [c[0], c[1], c[2]], opacity: 1.0, normal: [n[0], n[1], n[2]], depth: 1.0 });
+    assert_eq!(fwd.aux[0].n_contrib, 1);
+    assert_eq!(&fwd.weights[0..3], &[1.0, 0.0, 0.0]);
+    // Empty and transparent rays: exactly the background, nothing else.
+    for r in [1, 2] {
+        assert_eq!(fwd.rays[r], RayOutput { rgb: bg, opacity: 0.0, normal: [0.0; 3], depth: 0.0 }, "ray {r}");
+    }
+    assert_eq!(fwd.aux[1].n_contrib, 0);
+    assert_eq!(fwd.aux[2].n_contrib, 2);
+    // Half transparent: an even mix.
+    let half = &fwd.rays[3];
+    assert!((half.opacity - 0.5).abs() < 1e-6);
+    for k in 0..3 {
+        assert!((half.rgb[k] - 0.5 * (c[k] + bg[k])).abs() < 1e-6);
+        assert!((half.normal[k] - 0.5 * n[k]).abs() < 1e-6);
+    }
+    assert!((half.depth - 1.5).abs() < 1e-6);
+    // Black background: the same rays composite onto zero.
+    let black = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let fb = run_forward(&gpu, &black, &up, 0);
+    assert_eq!(fb.rays[1].rgb, [0.0; 3]);
+    assert!((fb.rays[3].rgb[1] - 0.5 * c[1]).abs() < 1e-6);
+    // Renormalised normal helper.
+    let u = unit_normal(&half);
+    assert!((u[1] - 0.6).abs() < 1e-6 && (u[2] - 0.8).abs() < 1e-6);
+    assert_eq!(unit_normal(&fwd.rays[1]), [0.0; 3]);
+    // Backward through the opaque and empty rays: the background gets no gradient
+    // path through ray 0, and only sample 0 of ray 0 gets colour gradient.
+    let g = RayOutput { rgb: [1.0, -2.0, 0.5], opacity: 0.3, normal: [0.1, 0.2, 0.3], depth: -1.0 };
+    let grads = run_backward(&gpu, &renderer, &up, &fwd, &[g; 4], &sentinel_grads(6), false);
+    assert_eq!(grads.rgb[0], [1.0, -2.0, 0.5, 0.0]);
+    assert_eq!(grads.normal[0], [0.1, 0.2, 0.3, 0.0]);
+    for s in 1..3 {
+        assert_eq!((grads.density[s], grads.rgb[s], grads.normal[s]), (0.0, [0.0; 4], [0.0; 4]), "sample {s}");
+    }
+}
+
+/// `dL/dx` by central differences of the `f64` reference, for one ray.
+fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
+    let h = 1e-6 * x.abs().max(1.0);
+    let eval = |v: f64| {
+        let mut ray = ray.to_vec();
+        set(&mut ray[i], v);
+        let r = reference::composite(&ray, bg, th);
+        (r.dot(g), r.n_contrib)
+    };
+    let (lp, kp) = eval(x + h);
+    let (lm, km) = eval(x - h);
+    // A step across the termination threshold is a discontinuity: skip.
+    (kp == km).then(|| (lp - lm) / (2.0 * h))
+}
+
+fn check_backward_fd(cfg: RenderConfig, seed: u64) {
+    let gpu = test_gpu(false);
+    let mut rng = Rng(seed);
+    let h = random_batch(&mut rng, 300, 48);
+    let up = upload(&gpu, &h);
+    let renderer = Renderer::new(&gpu, cfg).unwrap();
+    let fwd = run_forward(&gpu, &renderer, &up, 5);
+    let d_rays: Vec<RayOutput> = (0..h.n_rays())
+        .map(|_| RayOutput {
+            rgb: [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)],
+            opacity: rng.range(-1.0, 1.0),
+            normal: [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)],
+            depth: rng.range(-1.0, 1.0),
+        })
+        .collect();
+    let t0 = std::time::Instant::now();
+    let grads = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &sentinel_grads(h.density.len()), false);
+    eprintln!("backward of {} rays, {} samples in {:?}", h.n_rays(), h.capacity(), t0.elapsed());
+    let refs = reference_of(&h, &cfg, 5);
+    let bgs = backgrounds(&cfg, 5, h.n_rays());
+    let th = cfg.transmittance_threshold as f64;
+    let (mut n_sigma, mut n_skipped, mut worst_sigma) = (0, 0, 0.0f64);
+    for (r, want) in refs.iter().enumerate() {
+        if fwd.aux[r].n_contrib as usize != want.n_contrib {
+            n_skipped += 1;
+            continue;
+        }
+        let ray = h.ray(r);
+        let bg = bgs[r].map(|v| v as f64);
+        let g = &d_rays[r];
+        let gv = |a: [f32; 3]| a.map(|v| v as f64);
+        let (grgb, gn) = (gv(g.rgb), gv(g.normal));
+        // The scale of the suffix-sum cancellation.
+        let u: Vec<f64> = ray
+            .iter()
+            .map(|s| {
+                (0..3).map(|k| grgb[k] * (s.rgb[k] - bg[k]) + gn[k] * s.normal[k]).sum::<f64>()
+                    + g.opacity as f64
+                    + g.depth as f64 * s.t
+            })
+            .collect();
+        let total: f64 = u.iter().zip(&want.weights).map(|(u, w)| u * w).sum();
+        let scale = u.iter().zip(&want.weights).map(|(u, w)| (u * w).abs()).sum::<f64>() + total.abs();
+        let start = h.ranges[r].start as usize;
+        for (i, s) in ray.iter().enumerate() {
+            let idx = start + i;
+            let (gd, gc, gnn) = (grads.density[idx] as f64, grads.rgb[idx], grads.normal[idx]);
+            assert_eq!((gc[3], gnn[3]), (0.0, 0.0), "ray {r} sample {i}: w components");
+            if let Some(want_s) = fd(&ray, bg, th, g, i, &|s, v| s.sigma = v, s.sigma) {
+                let tol = 1e-4 * want_s.abs() + 2e-6 * s.dt * scale;
+                worst_sigma = worst_sigma.max((gd - want_s).abs() / (1e-4 * want_s.abs() + 1e-6 * s.dt * scale).max(1e-30));
+                assert!(
+                    (gd - want_s).abs() <= tol,
+                    "ray {r} sample {i}: dL/dsigma gpu {gd} fd {want_s} (tol {tol:e}, sigma {}, K {})",
+                    s.sigma,
+                    want.n_contrib
+                );
+                n_sigma += 1;
+            }
+            for k in 0..3 {
+                let fc = fd(&ray, bg, th, g, i, &|s, v| s.rgb[k] = v, s.rgb[k]).unwrap();
+                let fnn = fd(&ray, bg, th, g, i, &|s, v| s.normal[k] = v, s.normal[k]).unwrap();
+                assert!((gc[k] as f64 - fc).abs() <= 1e-5 * fc.abs() + 1e-7, "ray {r} sample {i}: dL/dc{k} {} vs {fc}", gc[k]);
+                assert!((gnn[k] as f64 - fnn).abs() <= 1e-5 * fnn.abs() + 1e-7, "ray {r} sample {i}: dL/dn{k} {} vs {fnn}", gnn[k]);
+            }
+            if i >= want.n_contrib {
+                assert_eq!((gd, gc, gnn), (0.0, [0.0; 4], [0.0; 4]), "ray {r} sample {i}: past termination");
+            }
+        }
+    }
+    for (s, inside) in h.in_range().iter().enumerate() {
+        if !inside {
+            assert_eq!((grads.density[s], grads.rgb[s], grads.normal[s]), (123.0, [123.0; 4], [123.0; 4]), "gap sample {s} written");
+        }
+    }
+    assert!(n_skipped <= 3, "{n_skipped} rays disagree on termination");
+    assert!(n_sigma > 4000, "only {n_sigma} sigma gradients checked");
+    eprintln!("{cfg:?}: {n_sigma} dL/dsigma checked, worst error / (1e-4 |fd| + 1e-6 dt S) = {worst_sigma:.3}");
+}
+
+#[test]
+fn backward_matches_finite_differences_black() {
+    check_backward_fd(RenderConfig::default(), 11);
+}
+
+#[test]
+fn backward_matches_finite_differences_colour_background() {
+    check_backward_fd(RenderConfig { background: Background::Color { rgb: [0.9, 0.1, 0.6] }, transmittance_threshold: 1e-4 }, 12);
+}
+
+#[test]
+fn backward_matches_finite_differences_random_background_no_termination() {
+    check_backward_fd(RenderConfig { background: Background::Random, transmittance_threshold: 0.0 }, 13);
+}
+
+#[test]
+fn backward_accumulates_when_asked() {
+    let gpu = test_gpu(false);
+    let mut rng = Rng(21);
+    let h = random_batch(&mut rng, 200, 32);
+    let up = upload(&gpu, &h);
+    let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let fwd = run_forward(&gpu, &renderer, &up, 0);
+    let d_rays: Vec<RayOutput> =
+        (0..h.n_rays()).map(|_| RayOutput { rgb: [rng.uniform(); 3], opacity: 0.5, normal: [0.3; 3], depth: -0.2 }).collect();
+    let n = h.density.len();
+    let fresh = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &sentinel_grads(n), false);
+    let init = Grads {
+        density: (0..n).map(|_| rng.range(-1.0, 1.0)).collect(),
+        rgb: (0..n).map(|_| [rng.range(-1.0, 1.0); 4]).collect(),
+        normal: (0..n).map(|_| [rng.range(-1.0, 1.0); 4]).collect(),
+    };
+    let acc = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &init, true);
+    let inside = h.in_range();
+    for s in 0..n {
+        if inside[s] {
+            assert_eq!(acc.density[s], init.density[s] + fresh.density[s], "sample {s}");
+            for k in 0..4 {
+                assert_eq!(acc.rgb[s][k], init.rgb[s][k] + fresh.rgb[s][k]);
+                assert_eq!(acc.normal[s][k], init.normal[s][k] + fresh.normal[s][k]);
+            }
+        } else {
+            assert_eq!((acc.density[s], acc.rgb[s], acc.normal[s]), (init.density[s], init.rgb[s], init.normal[s]));
+        }
+    }
+}
+
+#[test]
+fn early_termination_is_the_same_forward_and_backward() {
+    let gpu = test_gpu(false);
+    let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    // 8 samples, dt = 0.1; sample 3 has tau = 12, so T_4 < 1e-4 and K = 4.
+    let sigma = [0.5f32, 1.0, 2.0, 120.0, 1.0, 3.0, 0.5, 200.0];
+    let mk = |density: &[f32]| HostBatch {
+        ranges: vec![SampleRange { start: 0, count: 8 }],
+        samples: (0..8).map(|i| GpuSample { pos: [0.0; 3], t: 1.0 + 0.1 * i as f32, dir: [0.0, 0.0, 1.0], dt: 0.1 }).collect(),
+        density: density.to_vec(),
+        rgb: (0..8).map(|i| [0.1 * i as f32, 0.5, 1.0 - 0.1 * i as f32, 0.0]).collect(),
+        normal: vec![[0.0, 0.0, 1.0, 0.0]; 8],
+    };
+    let h = mk(&sigma);
+    let up = upload(&gpu, &h);
+    let fwd = run_forward(&gpu, &renderer, &up, 0);
+    let want = reference::composite(&h.ray(0), [0.0; 3], 1e-4);
+    assert_eq!(want.n_contrib, 4);
+    assert_eq!(fwd.aux[0].n_contrib, 4);
+    assert!(fwd.weights[..4].iter().all(|&w| w > 0.0));
+    assert_eq!(&fwd.weights[4..], &[0.0; 4]);
+    // The host weights helper agrees.
+    let hw = reference::sample_weights(&h.ranges, &h.samples, &h.density, 1e-4);
+    for (a, b) in hw.iter().zip(&fwd.weights) {
+        assert!((a - b).abs() <= 1e-6 * a.max(1e-6));
+    }
+    // Samples past K change nothing in the forward pass, bit for bit.
+    let mut other = sigma;
+    other[4..].copy_from_slice(&[50.0, 0.0, 9.0, 1.0]);
+    let fwd2 = run_forward(&gpu, &renderer, &upload(&gpu, &mk(&other)), 0);
+    assert_eq!(fwd.rays, fwd2.rays);
+    // ... and get exactly zero gradient, while the K contributing samples get some.
+    let g = RayOutput { rgb: [1.0, 1.0, 1.0], opacity: 1.0, normal: [1.0; 3], depth: 1.0 };
+    let grads = run_backward(&gpu, &renderer, &up, &fwd, &[g], &sentinel_grads(8), false);
+    for i in 0..8 {
+        let zero = grads.density[i] == 0.0 && grads.rgb[i] == [0.0; 4] && grads.normal[i] == [0.0; 4];
+        assert_eq!(zero, i >= 4, "sample {i}: {:?} {:?}", grads.density[i], grads.rgb[i]);
+    }
+    // Consistent with the truncated reference: dL/dsigma of sample 5 is 0 there too.
+    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, 5, &|s, v| s.sigma = v, 3.0).unwrap();
+    assert_eq!(fd5, 0.0);
+}
+
+#[test]
+fn undersized_buffers_are_errors() {
+    let gpu = test_gpu(false);
+    let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let mut rng = Rng(3);
+    let h = random_batch(&mut rng, 10, 8);
+    let up = upload(&gpu, &h);
+    let small = RenderOutputs::new(&gpu, 5, None).unwrap();
+    let mut enc = gpu.encoder();
+    let err = renderer.forward(&mut enc, &up.batch, &up.field, &small, 0).unwrap_err();
+    assert!(matches!(err, RenderError::BufferTooSmall { what: "ray outputs", len: 5, needed: 10 }), "{err}");
+    let few_weights = RenderOutputs::new(&gpu, 10, Some(3)).unwrap();
+    assert!(renderer.forward(&mut enc, &up.batch, &up.field, &few_weights, 0).is_err());
+    assert!(matches!(
+        Renderer::new(&gpu, RenderConfig { transmittance_threshold: f32::NAN, ..Default::default() }),
+        Err(RenderError::BadThreshold(_))
+    ));
+}
+
+#[test]
+fn config_round_trips_through_json() {
+    let cfg = RenderConfig { background: Background::Color { rgb: [1.0, 0.5, 0.0] }, transmittance_threshold: 1e-3 };
+    let s = serde_json::to_string(&cfg).unwrap();
+    assert_eq!(serde_json::from_str::<RenderConfig>(&s).unwrap(), cfg);
+    let r: RenderConfig = serde_json::from_str(r#"{"background":{"kind":"random"}}"#).unwrap();
+    assert_eq!(r, RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 });
+}
+
+/// Throughput on the device in use (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn render_throughput() {
+    let gpu = test_gpu(false);
+    let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let mut rng = Rng(99);
+    let h = random_batch(&mut rng, 4096, 256);
+    let up = upload(&gpu, &h);
+    let out = RenderOutputs::new(&gpu, up.batch.n_rays, None).unwrap();
+    let grads = FieldOutputs::new(&gpu, up.batch.capacity).unwrap();
+    let d = GpuBuffer::from_slice(&gpu, "d", &vec![RayOutput { rgb: [1.0; 3], opacity: 1.0, normal: [1.0; 3], depth: 1.0 }; 4096]).unwrap();
+    for pass in 0..2 {
+        let t0 = std::time::Instant::now();
+        let mut enc = gpu.encoder();
+        renderer.forward(&mut enc, &up.batch, &up.field, &out, 0).unwrap();
+        enc.submit();
+        gpu.wait().unwrap();
+        let t1 = std::time::Instant::now();
+        let mut enc = gpu.encoder();
+        renderer.backward(&mut enc, &up.batch, &up.field, &out, &d, &grads, false).unwrap();
+        enc.submit();
+        gpu.wait().unwrap();
+        eprintln!(
+            "pass {pass}: {} rays, {} samples on {}: forward {:?}, backward {:?}",
+            h.n_rays(),
+            h.capacity(),
+            gpu.adapter().name,
+            t1 - t0,
+            t1.elapsed()
+        );
+    }
+}

@@ -1,0 +1,458 @@
+//! The occupancy grid: a `resolution`^3 density grid over the scene AABB, its
+//! occupancy bitfield, and the brick BVH built from it.
+//!
+//! Owner of `kernels/sampler/grid.wgsl`. Updating is two-phase so that the grid never
+//! knows the field: [`OccupancyGrid::query_points`] chooses cells and one jittered
+//! point in each; the caller evaluates density there; [`OccupancyGrid::update`] takes
+//! the densities back and, on the GPU: scatters the maximum density per queried cell
+//! (`atomicMax` on the bits of non-negative floats: order-independent), applies
+//! `cell <- max(decay * cell, density)` to the queried cells, sums the grid with a
+//! fixed-order reduction for the mean, and writes the bitfield `cell > min(threshold,
+//! mean)`. The bitfield is then read back (res^3 / 8 bytes, 256 KiB at 128^3) and,
+//! when it changed, the occupied-cell list (for the next query) and the brick BVH
+//! ([`super::bricks`]) are rebuilt and uploaded.
+//!
+//! Cell selection (nerfacc's `_sample_uniform_and_occupied_cells`): during warm-up
+//! (`step < warmup_steps`) every cell, point `i` in cell `i`; afterwards `n/4` cells
+//! drawn uniformly, then the occupied cells: all of them in index order when there
+//! are at most `n/4`, else `n/4` drawn uniformly from them. Draws and jitter use the
+//! PCG hash of `(seed, point, k)`: deterministic for a seed.
+//!
+//! Invariants: `host_bits` equals the GPU bitfield; the BVH and the occupied list
+//! were built from `host_bits`; before the first update every cell is occupied (so an
+//! untrained grid samples like the uniform marcher restricted to the AABB).
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
+
+use super::bricks::{BrickBvh, BrickLayout, GpuBvhNode};
+use super::{SamplerConfig, SamplerError, fold_groups};
+
+const FILE: &str = "sampler/grid.wgsl";
+
+const QUERY: KernelSpec = KernelSpec {
+    file: FILE,
+    entry: "query_points",
+    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+};
+const SCATTER_MAX: KernelSpec = KernelSpec {
+    file: FILE,
+    entry: "scatter_max",
+    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
+};
+const EMA: KernelSpec =
+    KernelSpec { file: FILE, entry: "ema", bindings: &[Binding::Uniform, Binding::ReadWrite, Binding::ReadWrite] };
+const REDUCE: KernelSpec =
+    KernelSpec { file: FILE, entry: "reduce_sum", bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite] };
+const THRESHOLD: KernelSpec = KernelSpec {
+    file: FILE,
+    entry: "threshold_bits",
+    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
+};
+
+/// Workgroups of the first reduction pass (each sums a strided share); the second
+/// pass sums their partials in one workgroup of the same size.
+const REDUCE_GROUPS: u32 = 256;
+const REDUCE_WG: u32 = 256;
+
+/// Grid geometry as the kernels read it (`GridGeom` in `kernels/sampler/common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GridGeom {
+    pub aabb_min: [f32; 3],
+    pub res: u32,
+    pub aabb_max: [f32; 3],
+    pub n_cells: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct QueryParams {
+    geom: GridGeom,
+    count: u32,
+    seed: u32,
+    all_cells: u32,
+    n_uniform: u32,
+    list_len: u32,
+    _pad: [u32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct CountParams {
+    n: u32,
+    n_cells: u32,
+    decay: f32,
+    threshold: f32,
+}
+
+/// The points of one update: evaluate density at `positions[..count]` (xyz; w = 0)
+/// and pass it to [`OccupancyGrid::update`] with `cells`.
+pub struct GridQuery {
+    pub positions: GpuBuffer<[f32; 4]>,
+    pub cells: GpuBuffer<u32>,
+    pub count: u32,
+}
+
+/// What an update did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridUpdate {
+    /// Mean of all cells after the EMA.
+    pub mean_density: f32,
+    /// Occupied cells and bricks after the update.
+    pub occupied_cells: u32,
+    pub occupied_bricks: u32,
+    /// Whether the bitfield changed (and the BVH was rebuilt).
+    pub changed: bool,
+}
+
+/// The occupancy grid with its bitfield and brick BVH (see the module doc).
+pub struct OccupancyGrid {
+    config: SamplerConfig,
+    layout: BrickLayout,
+    geom: GridGeom,
+    density: GpuBuffer<f32>,
+    scratch: GpuBuffer<u32>,
+    partials: GpuBuffer<f32>,
+    sum: GpuBuffer<f32>,
+    bits: GpuBuffer<u32>,
+    host_bits: Vec<u32>,
+    occupied: GpuBuffer<u32>,
+    n_occupied: u32,
+    bvh: BrickBvh,
+    gpu_nodes: GpuBuffer<GpuBvhNode>,
+    gpu_prims: GpuBuffer<GpuBvhNode>,
+}
+
+impl OccupancyGrid {
+    /// A grid over `aabb` with every cell occupied and zero density.
+    pub fn new(gpu: &Gpu, config: &SamplerConfig, aabb: [Vec3; 2]) -> Result<Self, SamplerError> {
+        config.validate()?;
+        if !(aabb[1].cmpgt(aabb[0]).all() && aabb[0].is_finite() && aabb[1].is_finite()) {
+            return Err(SamplerError::Config(format!("empty or infinite AABB {aabb:?}")));
+        }
+        let res = config.resolution;
+        let n_cells = res * res * res;
+        let n_words = n_cells.div_ceil(32) as usize;
+        let geom = GridGeom { aabb_min: aabb[0].to_array(), res, aabb_max: aabb[1].to_array(), n_cells };
+        let mut host_bits = vec![u32::MAX; n_words];
+        if n_cells % 32 != 0 {
+            host_bits[n_words - 1] = (1u32 << (n_cells % 32)) - 1;
+        }
+        let mut grid = Self {
+            config: config.clone(),
+            layout: BrickLayout { aabb, resolution: res, brick_size: config.brick_size },
+            geom,
+            density: GpuBuffer::zeros(gpu, "occupancy density", n_cells as usize)?,
+            scratch: GpuBuffer::zeros(gpu, "occupancy scratch", n_cells as usize)?,
+            partials: GpuBuffer::zeros(gpu, "occupancy partial sums", REDUCE_GROUPS as usize)?,
+            sum: GpuBuffer::zeros(gpu, "occupancy sum", 1)?,
+            bits: GpuBuffer::from_slice(gpu, "occupancy bits", &host_bits)?,
+            host_bits: Vec::new(),
+            occupied: GpuBuffer::zeros(gpu, "occupied cells", 0)?,
+            n_occupied: 0,
+            bvh: BrickBvh::default(),
+            gpu_nodes: GpuBuffer::zeros(gpu, "brick bvh nodes", 0)?,
+            gpu_prims: GpuBuffer::zeros(gpu, "brick boxes", 0)?,
+        };
+        grid.rebuild(gpu, host_bits)?;
+        Ok(grid)
+    }
+
+    /// Whether the train loop should update the grid at `step`.
+    pub fn should_update(&self, step: u32) -> bool {
+        step % self.config.update_interval == 0
+    }
+
+    /// Chooses the cells of the update at `step` and one jittered point in each
+    /// (see the module doc); deterministic for `(step < warmup, seed, occupancy)`.
+    pub fn query_points(&self, gpu: &Gpu, step: u32, seed: u32) -> Result<GridQuery, SamplerError> {
+        let n_cells = self.geom.n_cells;
+        let (all_cells, n_uniform, count) = if step < self.config.warmup_steps {
+            (1, 0, n_cells)
+        } else {
+            let quarter = n_cells / 4;
+            (0, quarter, quarter + self.n_occupied.min(quarter))
+        };
+        let positions = GpuBuffer::zeros(gpu, "grid query points", count as usize)?;
+        let cells = GpuBuffer::zeros(gpu, "grid query cells", count as usize)?;
+        let kernel = gpu.kernel(&QUERY)?;
+        let mut enc = gpu.encoder();
+        let params = enc.uniform(&QueryParams {
+            geom: self.geom,
+            count,
+            seed,
+            all_cells,
+            n_uniform,
+            list_len: self.n_occupied,
+            _pad: [0; 3],
+        });
+        enc.dispatch_threads(&kernel, &[&params, &self.occupied.buffer, &positions.buffer, &cells.buffer], count);
+        enc.submit();
+        Ok(GridQuery { positions, cells, count })
+    }
+
+    /// Folds the densities evaluated at a query's points into the grid, rebuilds the
+    /// bitfield, and the BVH if the bitfield changed. Waits for the GPU (one small
+    /// readback).
+    pub fn update(
+        &mut self,
+        gpu: &Gpu,
+        cells: &GpuBuffer<u32>,
+        densities: &GpuBuffer<f32>,
+        count: u32,
+    ) -> Result<GridUpdate, SamplerError> {
+        assert!(
+            cells.len() >= count as usize && densities.len() >= count as usize,
+            "update of {count} points with {} cells and {} densities",
+            cells.len(),
+            densities.len()
+        );
+        let n_cells = self.geom.n_cells;
+        let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold: self.config.threshold };
+        let mut enc = gpu.encoder();
+        let p_update = enc.uniform(&params);
+        enc.dispatch_threads(
+            &*gpu.kernel(&SCATTER_MAX)?,
+            &[&p_update, &cells.buffer, &densities.buffer, &self.scratch.buffer],
+            count,
+        );
+        enc.dispatch_threads(&*gpu.kernel(&EMA)?, &[&p_update, &self.scratch.buffer, &self.density.buffer], n_cells);
+        let reduce = gpu.kernel(&REDUCE)?;
+        let groups = n_cells.div_ceil(REDUCE_WG).min(REDUCE_GROUPS);
+        let p_cells = enc.uniform(&CountParams { n: n_cells, ..params });
+        enc.dispatch(&reduce, &[&p_cells, &self.density.buffer, &self.partials.buffer], fold_groups(gpu, groups));
+        let p_partials = enc.uniform(&CountParams { n: groups, ..params });
+        enc.dispatch(&reduce, &[&p_partials, &self.partials.buffer, &self.sum.buffer], [1, 1, 1]);
+        enc.dispatch_threads(
+            &*gpu.kernel(&THRESHOLD)?,
+            &[&p_update, &self.density.buffer, &self.sum.buffer, &self.bits.buffer],
+            n_cells.div_ceil(32),
+        );
+        enc.submit();
+        let bits = self.bits.read(gpu)?;
+        let mean_density = self.sum.read(gpu)?[0] / n_cells as f32;
+        let changed = bits != self.host_bits;
+        if changed {
+            self.rebuild(gpu, bits)?;
+        }
+        Ok(GridUpdate {
+            mean_density,
+            occupied_cells: self.n_occupied,
+            occupied_bricks: self.bvh.bricks.len() as u32,
+            changed,
+        })
+    }
+
+    /// Rebuilds the occupied list and the brick BVH from `bits` and uploads them.
+    fn rebuild(&mut self, gpu: &Gpu, bits: Vec<u32>) -> Result<(), SamplerError> {
+        let n_cells = self.geom.n_cells as usize;
+        let mut list = Vec::new();
+        for (w, &word) in bits.iter().enumerate() {
+            let mut word = word;
+            while word != 0 {
+                let c = w * 32 + word.trailing_zeros() as usize;
+                word &= word - 1;
+                if c < n_cells {
+                    list.push(c as u32);
+                }
+            }
+        }
+        let bvh = BrickBvh::build(self.layout.occupied_bricks(&bits))?;
+        self.occupied = GpuBuffer::from_slice(gpu, "occupied cells", &list)?;
+        self.n_occupied = list.len() as u32;
+        self.gpu_nodes = GpuBuffer::from_slice(gpu, "brick bvh nodes", &bvh.nodes)?;
+        self.gpu_prims = GpuBuffer::from_slice(gpu, "brick boxes", &bvh.prims)?;
+        self.bvh = bvh;
+        self.host_bits = bits;
+        Ok(())
+    }
+
+    pub fn config(&self) -> &SamplerConfig {
+        &self.config
+    }
+
+    pub fn resolution(&self) -> u32 {
+        self.geom.res
+    }
+
+    pub fn aabb(&self) -> [Vec3; 2] {
+        self.layout.aabb
+    }
+
+    /// Geometry as uploaded to kernels.
+    pub fn geom(&self) -> GridGeom {
+        self.geom
+    }
+
+    /// The occupancy bitfield on the host (equal to the GPU's).
+    pub fn occupancy_bits(&self) -> &[u32] {
+        &self.host_bits
+    }
+
+    /// Whether cell `(x, y, z)` is occupied.
+    pub fn is_occupied(&self, x: u32, y: u32, z: u32) -> bool {
+        let c = x + self.geom.res * (y + self.geom.res * z);
+        (self.host_bits[(c >> 5) as usize] >> (c & 31)) & 1 != 0
+    }
+
+    pub fn occupied_cells(&self) -> u32 {
+        self.n_occupied
+    }
+
+    /// The brick BVH on the host (brick boxes, obvhs BVH, flattened nodes).
+    pub fn brick_bvh(&self) -> &BrickBvh {
+        &self.bvh
+    }
+
+    /// GPU buffers of the brick BVH: nodes, brick boxes (leaf order), node count.
+    pub fn gpu_bvh(&self) -> (&GpuBuffer<GpuBvhNode>, &GpuBuffer<GpuBvhNode>, u32) {
+        (&self.gpu_nodes, &self.gpu_prims, self.bvh.nodes.len() as u32)
+    }
+
+    /// The GPU occupancy bitfield.
+    pub fn gpu_bits(&self) -> &GpuBuffer<u32> {
+        &self.bits
+    }
+
+    /// Reads the density grid back (tests, debugging, checkpoints).
+    pub fn read_density(&self, gpu: &Gpu) -> Result<Vec<f32>, SamplerError> {
+        Ok(self.density.read(gpu)?)
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// CPU mirror of `pcg_hash` / `rand_u32` / `unit_f32` in `kernels/sampler/common.wgsl`.
+    pub(crate) fn pcg_hash(v: u32) -> u32 {
+        let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
+        let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
+        (word >> 22) ^ word
+    }
+
+    pub(crate) fn rand_u32(seed: u32, index: u32, k: u32) -> u32 {
+        pcg_hash(pcg_hash(pcg_hash(seed).wrapping_add(index)).wrapping_add(k))
+    }
+
+    pub(crate) fn unit_f32(bits: u32) -> f32 {
+        (bits >> 8) as f32 * (1.0 / 16777216.0)
+    }
+
+    /// CPU reference of one update (module doc): the query cells, then EMA, mean and
+    /// bitfield. Returns the cells queried.
+    struct CpuGrid {
+        cfg: SamplerConfig,
+        density: Vec<f32>,
+        bits: Vec<bool>,
+    }
+
+    impl CpuGrid {
+        fn query_cells(&self, step: u32, seed: u32) -> Vec<u32> {
+            let n = self.density.len() as u32;
+            if step < self.cfg.warmup_steps {
+                return (0..n).collect();
+            }
+            let occupied: Vec<u32> = (0..n).filter(|&c| self.bits[c as usize]).collect();
+            let quarter = n / 4;
+            let mut cells: Vec<u32> = (0..quarter).map(|i| rand_u32(seed, i, 0) % n).collect();
+            if occupied.len() as u32 <= quarter {
+                cells.extend(&occupied);
+            } else {
+                let len = occupied.len() as u32;
+                cells.extend((quarter..2 * quarter).map(|i| occupied[(rand_u32(seed, i, 0) % len) as usize]));
+            }
+            cells
+        }
+
+        fn update(&mut self, cells: &[u32], dens: &[f32]) {
+            let mut new = vec![None::<f32>; self.density.len()];
+            for (&c, &d) in cells.iter().zip(dens) {
+                let d = if d > 0.0 { d.min(3.0e38) } else { 0.0 };
+                let e = &mut new[c as usize];
+                *e = Some(e.map_or(d, |v| v.max(d)));
+            }
+            for (g, n) in self.density.iter_mut().zip(new) {
+                if let Some(d) = n {
+                    *g = (*g * self.cfg.decay).max(d);
+                }
+            }
+            let mean = self.density.iter().map(|&v| v as f64).sum::<f64>() / self.density.len() as f64;
+            let thr = (self.cfg.threshold as f64).min(mean) as f32;
+            self.bits = self.density.iter().map(|&v| v > thr).collect();
+        }
+    }
+
+    fn density_at(p: [f32; 4], step: u32) -> f32 {
+        // A blob that moves with the step, plus negative values and a NaN to check
+        // that they count as zero.
+        let c = 0.2 * (step as f32 / 16.0) - 0.3;
+        let r2 = (p[0] - c).powi(2) + p[1].powi(2) + (p[2] + 0.1).powi(2);
+        let v = 3.0 * (-r2 / 0.08).exp() - 0.002;
+        if p[0] > 0.9 && p[1] > 0.9 { f32::NAN } else { v }
+    }
+
+    #[test]
+    fn sampler_grid_update_matches_cpu_reference_through_warmup() {
+        let gpu = crate::gpu::test_gpu(false);
+        let cfg = SamplerConfig { resolution: 24, warmup_steps: 48, brick_size: 4, ..Default::default() };
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
+        let n = 24u32.pow(3);
+        assert_eq!(grid.occupied_cells(), n, "a new grid is fully occupied");
+        let mut cpu = CpuGrid { cfg: cfg.clone(), density: vec![0.0; n as usize], bits: vec![true; n as usize] };
+        assert!(grid.should_update(0) && grid.should_update(32) && !grid.should_update(17));
+        let mut saw_random_phase = false;
+        for step in (0..160).step_by(16) {
+            let seed = 1000 + step;
+            let q = grid.query_points(&gpu, step, seed).unwrap();
+            let cells = q.cells.read(&gpu).unwrap();
+            let pos = q.positions.read(&gpu).unwrap();
+            let want_cells = cpu.query_cells(step, seed);
+            assert_eq!(cells, want_cells, "query cells at step {step}");
+            assert_eq!(q.count as usize, cells.len());
+            if step >= cfg.warmup_steps {
+                saw_random_phase = true;
+                assert!(cells.len() < n as usize);
+            }
+            // Each point lies in its cell, at the jitter the hash gives.
+            for (i, (&c, p)) in cells.iter().zip(&pos).enumerate() {
+                let xyz = [c % 24, (c / 24) % 24, c / 576];
+                for k in 0..3 {
+                    let u = unit_f32(rand_u32(seed, i as u32, k as u32 + 1));
+                    let want = -1.0 + 2.0 * ((xyz[k] as f32 + u) / 24.0);
+                    assert!((p[k] - want).abs() < 1e-5, "point {i} axis {k}: {} vs {want}", p[k]);
+                }
+                assert_eq!(p[3], 0.0);
+            }
+            let dens: Vec<f32> = pos.iter().map(|&p| density_at(p, step)).collect();
+            let dbuf = GpuBuffer::from_slice(&gpu, "dens", &dens).unwrap();
+            let upd = grid.update(&gpu, &q.cells, &dbuf, q.count).unwrap();
+            cpu.update(&cells, &dens);
+            let got = grid.read_density(&gpu).unwrap();
+            assert_eq!(got, cpu.density, "EMA at step {step}");
+            let mean = cpu.density.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
+            assert!((upd.mean_density as f64 - mean).abs() < 1e-5 * mean.max(1e-3), "{} vs {mean}", upd.mean_density);
+            let thr = cfg.threshold.min(mean as f32);
+            for c in 0..n {
+                let (x, y, z) = (c % 24, (c / 24) % 24, c / 576);
+                let v = cpu.density[c as usize];
+                if (v - thr).abs() > 1e-6 {
+                    assert_eq!(grid.is_occupied(x, y, z), cpu.bits[c as usize], "bit of cell {c} at step {step}");
+                } else {
+                    cpu.bits[c as usize] = grid.is_occupied(x, y, z);
+                }
+            }
+            assert_eq!(upd.occupied_cells, cpu.bits.iter().filter(|&&b| b).count() as u32);
+            assert!(upd.occupied_cells > 0 && upd.occupied_cells < n / 2, "blob occupies part of the grid");
+        }
+        assert!(saw_random_phase);
+        // Same seed, same state: the same query.
+        let a = grid.query_points(&gpu, 500, 7).unwrap();
+        let b = grid.query_points(&gpu, 500, 7).unwrap();
+        assert_eq!(a.positions.read(&gpu).unwrap(), b.positions.read(&gpu).unwrap());
+    }
+}

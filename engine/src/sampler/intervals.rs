@@ -1,0 +1,291 @@
+//! Occupied intervals per ray: BVH traversal on the GPU.
+//!
+//! Owner of `kernels/sampler/intervals.wgsl`. One thread per ray walks the brick BVH
+//! ([`super::bricks`]) with a stack (no front-to-back order: the hits are sorted
+//! afterwards), collects `[max(t_enter, t_min), min(t_exit, t_max)]` of every brick
+//! it crosses (non-empty ones only), sorts them by entry, merges intervals that
+//! overlap or touch (gap `<= 1e-5 * max(1, |t_exit|)`, the float noise where a ray
+//! passes into a neighbouring brick), and while more than `max_intervals` remain,
+//! merges the pair with the smallest gap (the first on ties). Collecting all hits
+//! before merging (at most `3 * 32 - 2` bricks per ray, guaranteed by the 32 bricks
+//! per axis limit) makes the result independent of traversal order.
+//!
+//! Output: `intervals[r * max_intervals + i]` for `i < counts[r]`, sorted, disjoint.
+//! The tests compare with a CPU traversal of the same obvhs BVH.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, KernelSpec};
+use crate::samples::GpuRay;
+
+use super::{OccupancyGrid, SamplerError};
+
+const SPEC: KernelSpec = KernelSpec {
+    file: "sampler/intervals.wgsl",
+    entry: "ray_intervals",
+    bindings: &[
+        Binding::Uniform,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadWrite,
+        Binding::ReadWrite,
+    ],
+};
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Params {
+    n_rays: u32,
+    n_nodes: u32,
+    max_intervals: u32,
+    _pad: u32,
+}
+
+/// Per-ray interval lists for up to `max_rays` rays.
+pub struct RayIntervals {
+    pub intervals: GpuBuffer<[f32; 2]>,
+    pub counts: GpuBuffer<u32>,
+    pub max_rays: u32,
+    pub max_intervals: u32,
+}
+
+impl RayIntervals {
+    pub fn new(gpu: &Gpu, max_rays: u32, max_intervals: u32) -> Result<Self, SamplerError> {
+        assert!((1..=super::MAX_INTERVALS_LIMIT).contains(&max_intervals));
+        Ok(Self {
+            intervals: GpuBuffer::zeros(gpu, "ray intervals", max_rays as usize * max_intervals as usize)?,
+            counts: GpuBuffer::zeros(gpu, "ray interval counts", max_rays as usize)?,
+            max_rays,
+            max_intervals,
+        })
+    }
+
+    /// Records the traversal of `rays[..n_rays]` against `grid`'s brick BVH.
+    pub fn encode(
+        &self,
+        gpu: &Gpu,
+        enc: &mut Encoder<'_>,
+        grid: &OccupancyGrid,
+        rays: &GpuBuffer<GpuRay>,
+        n_rays: u32,
+    ) -> Result<(), SamplerError> {
+        assert!(n_rays <= self.max_rays && rays.len() >= n_rays as usize, "{n_rays} rays for {}", self.max_rays);
+        let (nodes, prims, n_nodes) = grid.gpu_bvh();
+        let kernel = gpu.kernel(&SPEC)?;
+        let params =
+            enc.uniform(&Params { n_rays, n_nodes, max_intervals: self.max_intervals, _pad: 0 });
+        enc.dispatch_threads(
+            &kernel,
+            &[&params, &rays.buffer, &nodes.buffer, &prims.buffer, &self.intervals.buffer, &self.counts.buffer],
+            n_rays,
+        );
+        Ok(())
+    }
+
+    /// Reads back the lists of the first `n_rays` rays.
+    pub fn read(&self, gpu: &Gpu, n_rays: u32) -> Result<Vec<Vec<[f32; 2]>>, SamplerError> {
+        let all = self.intervals.read(gpu)?;
+        let counts = self.counts.read(gpu)?;
+        let m = self.max_intervals as usize;
+        Ok((0..n_rays as usize).map(|r| all[r * m..r * m + counts[r] as usize].to_vec()).collect())
+    }
+}
+
+/// Runs the interval kernel on `rays` and reads the result (tests, tools).
+pub fn ray_intervals(
+    gpu: &Gpu,
+    grid: &OccupancyGrid,
+    rays: &[GpuRay],
+    max_intervals: u32,
+) -> Result<Vec<Vec<[f32; 2]>>, SamplerError> {
+    let n = rays.len() as u32;
+    let out = RayIntervals::new(gpu, n, max_intervals)?;
+    let ray_buf = GpuBuffer::from_slice(gpu, "rays", rays)?;
+    let mut enc = gpu.encoder();
+    out.encode(gpu, &mut enc, grid, &ray_buf, n)?;
+    enc.submit();
+    out.read(gpu, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Vec3, Vec3A};
+    use obvhs::aabb::Aabb;
+
+    use super::super::bricks::BrickBvh;
+    use super::super::grid::tests::{rand_u32, unit_f32};
+    use super::super::SamplerConfig;
+    use super::*;
+
+    /// CPU mirror of `safe_inverse_dir` + `ray_box` in `kernels/sampler/common.wgsl`.
+    fn ray_box(ray: &GpuRay, b: &Aabb) -> [f32; 2] {
+        let (mut tn, mut tf) = (f32::MIN, f32::MAX);
+        for k in 0..3 {
+            let d = ray.dir[k];
+            let inv = if d.abs() < 1e-30 { if d >= 0.0 { 1e30 } else { -1e30 } } else { 1.0 / d };
+            let t1 = (b.min[k] - ray.origin[k]) * inv;
+            let t2 = (b.max[k] - ray.origin[k]) * inv;
+            tn = tn.max(t1.min(t2));
+            tf = tf.min(t1.max(t2));
+        }
+        [tn, tf]
+    }
+
+    /// The reference: sort, merge touching, close smallest gaps over the cap.
+    fn merge(mut raw: Vec<[f32; 2]>, cap: usize) -> Vec<[f32; 2]> {
+        raw.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+        let mut out: Vec<[f32; 2]> = Vec::new();
+        for iv in raw {
+            match out.last_mut() {
+                Some(last) if iv[0] <= last[1] + 1e-5 * last[1].abs().max(1.0) => last[1] = last[1].max(iv[1]),
+                _ => out.push(iv),
+            }
+        }
+        while out.len() > cap {
+            let best = (0..out.len() - 1)
+                .min_by(|&i, &j| (out[i + 1][0] - out[i][1]).total_cmp(&(out[j + 1][0] - out[j][1])))
+                .unwrap();
+            out[best][1] = out[best + 1][1];
+            out.remove(best + 1);
+        }
+        out
+    }
+
+    fn clip(ray: &GpuRay, b: &Aabb) -> Option<[f32; 2]> {
+        let h = ray_box(ray, b);
+        let iv = [h[0].max(ray.t_min), h[1].min(ray.t_max)];
+        (iv[0] < iv[1]).then_some(iv)
+    }
+
+    /// CPU traversal of the same obvhs BVH with obvhs's own any-hit traversal.
+    fn cpu_bvh_intervals(bvh: &BrickBvh, ray: &GpuRay, cap: usize) -> Vec<[f32; 2]> {
+        let mut raw = Vec::new();
+        if let Some(tree) = &bvh.bvh {
+            let r = obvhs::ray::Ray::new(
+                Vec3A::from_array(ray.origin),
+                Vec3A::from_array(ray.dir),
+                ray.t_min,
+                ray.t_max,
+            );
+            tree.ray_traverse_anyhit(r, |_, id| {
+                let b = &bvh.bricks[tree.primitive_indices[id] as usize];
+                raw.extend(clip(ray, b));
+            });
+        }
+        merge(raw, cap)
+    }
+
+    fn brute_force_intervals(bvh: &BrickBvh, ray: &GpuRay, cap: usize) -> Vec<[f32; 2]> {
+        merge(bvh.bricks.iter().filter_map(|b| clip(ray, b)).collect(), cap)
+    }
+
+    /// A grid whose occupancy is a random set of blobs of cells, built through the
+    /// public two-phase update (warm-up: every cell queried once, density 0 or 1).
+    fn random_grid(gpu: &Gpu, cfg: &SamplerConfig, aabb: [Vec3; 2], seed: u32) -> OccupancyGrid {
+        let mut grid = OccupancyGrid::new(gpu, cfg, aabb).unwrap();
+        let q = grid.query_points(gpu, 0, seed).unwrap();
+        let res = cfg.resolution;
+        let cells = q.cells.read(gpu).unwrap();
+        let centers: Vec<[f32; 3]> = (0..12)
+            .map(|i| [0, 1, 2].map(|k| unit_f32(rand_u32(seed, i, k + 10)) * res as f32))
+            .collect();
+        let dens: Vec<f32> = cells
+            .iter()
+            .map(|&c| {
+                let p = [c % res, (c / res) % res, c / (res * res)].map(|v| v as f32 + 0.5);
+                let near = centers.iter().any(|ctr| (0..3).map(|k| (p[k] - ctr[k]).powi(2)).sum::<f32>() < 9.0);
+                let speckle = rand_u32(seed, c, 99) % 500 == 0;
+                if near || speckle { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let d = GpuBuffer::from_slice(gpu, "dens", &dens).unwrap();
+        let upd = grid.update(gpu, &q.cells, &d, q.count).unwrap();
+        assert!(upd.changed && upd.occupied_bricks > 10, "{upd:?}");
+        grid
+    }
+
+    fn random_rays(n: u32, seed: u32, aabb: [Vec3; 2]) -> Vec<GpuRay> {
+        let ext = aabb[1] - aabb[0];
+        (0..n)
+            .map(|i| {
+                let u = |k: u32| unit_f32(rand_u32(seed, i, k));
+                // Origins in a box twice the AABB's size (inside and outside), random
+                // directions, random [t_min, t_max] (some rays stop inside the grid).
+                let o = aabb[0] - 0.5 * ext + 2.0 * ext * Vec3::new(u(0), u(1), u(2));
+                let d = loop {
+                    let v = Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0;
+                    if v.length() > 0.1 {
+                        break v.normalize();
+                    }
+                };
+                let d = if i % 3 == 0 { ((aabb[0] + aabb[1]) * 0.5 - o).normalize() } else { d };
+                let t_min = u(6) * 0.5;
+                let t_max = t_min + ext.length() * (0.3 + 1.5 * u(7));
+                GpuRay { origin: o.to_array(), t_min, dir: d.to_array(), t_max }
+            })
+            .collect()
+    }
+
+    fn compare(got: &[Vec<[f32; 2]>], want: &[Vec<[f32; 2]>], what: &str) {
+        for (r, (g, w)) in got.iter().zip(want).enumerate() {
+            assert_eq!(g.len(), w.len(), "{what}: ray {r}: {g:?} vs {w:?}");
+            for (a, b) in g.iter().zip(w) {
+                for k in 0..2 {
+                    assert!((a[k] - b[k]).abs() <= 1e-4 * b[k].abs().max(1.0), "{what}: ray {r}: {g:?} vs {w:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn sampler_gpu_intervals_match_cpu_obvhs_traversal() {
+        let gpu = crate::gpu::test_gpu(false);
+        let aabb = [Vec3::new(-1.5, -1.0, -0.5), Vec3::new(2.5, 1.0, 1.5)];
+        for (res, brick, seed) in [(64u32, 4u32, 3u32), (48, 8, 11), (96, 4, 5)] {
+            let cfg = SamplerConfig { resolution: res, brick_size: brick, ..Default::default() };
+            let grid = random_grid(&gpu, &cfg, aabb, seed);
+            let bvh = grid.brick_bvh();
+            let rays = random_rays(3000, seed + 1, aabb);
+            let mut multi = 0;
+            for cap in [16u32, 3] {
+                let got = ray_intervals(&gpu, &grid, &rays, cap).unwrap();
+                let want: Vec<_> = rays.iter().map(|r| cpu_bvh_intervals(bvh, r, cap as usize)).collect();
+                compare(&got, &want, &format!("res {res} brick {brick} cap {cap}"));
+                let brute: Vec<_> = rays.iter().map(|r| brute_force_intervals(bvh, r, cap as usize)).collect();
+                compare(&want, &brute, "obvhs traversal vs brute force");
+                for (ray, ivs) in rays.iter().zip(&got) {
+                    assert!(ivs.len() <= cap as usize);
+                    for w in ivs.windows(2) {
+                        assert!(w[0][1] < w[1][0], "sorted and disjoint: {ivs:?}");
+                    }
+                    assert!(ivs.iter().all(|iv| iv[0] >= ray.t_min && iv[1] <= ray.t_max && iv[0] < iv[1]));
+                }
+                if cap == 16 {
+                    multi = got.iter().filter(|v| v.len() > 3).count();
+                    assert!(got.iter().filter(|v| v.is_empty()).count() > 100, "some rays miss everything");
+                }
+            }
+            assert!(multi > 50, "the cap of 3 is exercised: {multi} rays with more than 3 intervals");
+        }
+    }
+
+    #[test]
+    fn sampler_intervals_of_empty_and_full_grids() {
+        let gpu = crate::gpu::test_gpu(false);
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        let cfg = SamplerConfig { resolution: 32, ..Default::default() };
+        let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
+        // Full grid: one interval, the ray's chord through the box.
+        let ray = GpuRay { origin: [-3.0, 0.1, 0.2], t_min: 0.5, dir: [1.0, 0.0, 0.0], t_max: 10.0 };
+        let got = ray_intervals(&gpu, &grid, &[ray], 16).unwrap();
+        assert_eq!(got[0].len(), 1, "{got:?}");
+        assert!((got[0][0][0] - 2.0).abs() < 1e-5 && (got[0][0][1] - 4.0).abs() < 1e-5, "{got:?}");
+        // Empty grid (all densities 0): no BVH, no intervals.
+        let q = grid.query_points(&gpu, 0, 0).unwrap();
+        let zeros = GpuBuffer::from_slice(&gpu, "z", &vec![0.0f32; q.count as usize]).unwrap();
+        let upd = grid.update(&gpu, &q.cells, &zeros, q.count).unwrap();
+        assert_eq!((upd.occupied_cells, upd.occupied_bricks), (0, 0));
+        assert!(ray_intervals(&gpu, &grid, &[ray], 16).unwrap()[0].is_empty());
+    }
+}

@@ -1,0 +1,224 @@
+//! The sampler room: which points along each ray the field is evaluated at.
+//!
+//! Owns the occupancy grid ([`OccupancyGrid`]), the BVH over its occupied bricks
+//! ([`bricks`]), the per-ray occupied intervals ([`intervals`]), sample placement and
+//! compaction ([`Sampler`]) and the prefix sum that compacts ([`scan`]). Kernels live
+//! under `kernels/sampler/`; each has exactly one owner here:
+//!
+//! | kernel | owner |
+//! |---|---|
+//! | `sampler/grid.wgsl` | [`grid`] (query points, scatter-max, EMA, mean, bitfield) |
+//! | `sampler/intervals.wgsl` | [`intervals`] (BVH traversal per ray) |
+//! | `sampler/scan.wgsl` | [`scan`] (exclusive prefix sum) |
+//! | `sampler/march.wgsl` | [`march`] (count / write samples) |
+//! | `sampler/common.wgsl` | include only: grid geometry, slab test, PCG hash |
+//!
+//! # How the train loop drives it
+//! ```text
+//! once:       grid = OccupancyGrid::new(gpu, &cfg, aabb)?;  sampler = Sampler::new(&cfg, aabb)?;
+//! each step:  if grid.should_update(step) {
+//!                 let q = grid.query_points(gpu, step, seed)?;      // jittered points
+//!                 field density at q.positions[..q.count] -> dens   // the caller's field
+//!                 grid.update(gpu, &q.cells, &dens, q.count)?;      // EMA, bits, BVH
+//!             }
+//!             sampler.sample(gpu, March::Occupancy(&grid), &rays, &batch, Some(seed))?;
+//! ```
+//! The sampler never sees the field: the grid asks for densities at points and is
+//! handed them back.
+//!
+//! # Choices
+//! * **One cascade.** The grid covers the scene AABB only. Blender and DTU scenes are
+//!   bounded; LLFF is sampled in NDC where the AABB is the cube `[-1, 1]^3` that already
+//!   reaches infinity, so Instant-NGP's outer cascades have nothing to cover.
+//! * **Update rule** (Instant-NGP / nerfacc): queried cells get
+//!   `cell <- max(decay * cell, density)` (decay 0.95; several queries of one cell in
+//!   one update use their maximum), a cell is occupied iff `cell > min(threshold, mean
+//!   of all cells)` (threshold 0.01); during the first `warmup_steps` (256) every cell
+//!   is queried, afterwards a quarter of the cells at random plus a quarter drawn from
+//!   the occupied ones (all of them when fewer). Updates every `update_interval` (16)
+//!   steps. Before the first update every cell counts as occupied.
+//! * **Bricks of 8^3 cells** (`brick_size`): the BVH is built over the AABBs of bricks
+//!   holding at least one occupied cell. 8^3 keeps the BVH small (at most 16^3 = 4096
+//!   leaves at 128^3, built on the CPU in milliseconds whenever the bitfield changes)
+//!   and the per-ray interval lists short, while the per-cell bit test during marching
+//!   restores the full 128^3 resolution inside bricks. At most 32 bricks per axis.
+//! * **Intervals**: every hit brick gives `[t_enter, t_exit]` clipped to
+//!   `[t_min, t_max]`; they are sorted, merged where they overlap or touch (gap below
+//!   `1e-5 * max(1, |t|)`), and while more than `max_intervals` (16) remain the
+//!   smallest gap is closed. Closing gaps never loses samples: marching still tests
+//!   every sample's cell bit.
+//! * **Placement: Instant-NGP's constant step.** `dt = step / |dir|` with `step` a
+//!   length in the field's space (default: AABB diagonal / 1024), on a per-ray grid of
+//!   segments anchored at `t_min` (optionally shifted by a random fraction of `dt` per
+//!   ray for training). A segment is kept if its midpoint is in an occupied interval
+//!   and cell; empty cells are jumped over. Uniform mode keeps every segment of
+//!   `[t_min, t_max]` on the same grid, so both modes place identical samples where
+//!   space is occupied ("with vs without" comparisons differ only by skipped space).
+//!   At most `max_samples_per_ray` per ray (the nearest ones).
+//! * **Compaction**: count pass, exclusive scan over the rays (a real scan kernel, so
+//!   offsets are deterministic), write pass. Samples of all rays are packed; empty rays
+//!   get `count = 0` and cost nothing downstream. Past the batch capacity a ray keeps
+//!   its first samples and later rays get none; `count[1]` tells how many were wanted.
+
+pub mod bricks;
+pub mod grid;
+pub mod intervals;
+pub mod march;
+pub mod scan;
+
+pub use grid::{GridQuery, GridUpdate, OccupancyGrid};
+pub use march::{March, Sampler};
+pub use scan::ExclusiveScan;
+
+use serde::{Deserialize, Serialize};
+
+use crate::gpu::GpuError;
+
+/// Most bricks along one axis: a ray crosses at most `3 * 32 - 2` bricks, which the
+/// interval kernel collects in a fixed per-thread array.
+pub const MAX_BRICKS_PER_AXIS: u32 = 32;
+/// Upper bound of [`SamplerConfig::max_intervals`] (the interval kernel's array).
+pub const MAX_INTERVALS_LIMIT: u32 = 96;
+
+/// Errors of the sampler room.
+#[derive(Debug, thiserror::Error)]
+pub enum SamplerError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("invalid sampler configuration: {0}")]
+    Config(String),
+    #[error("the brick BVH is {depth} levels deep; the GPU traversal stack holds {limit}")]
+    BvhTooDeep { depth: u32, limit: u32 },
+}
+
+/// How samples are placed (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SamplerMode {
+    /// Occupancy grid + brick BVH: skip empty space.
+    #[default]
+    Occupancy,
+    /// Constant step across `[t_min, t_max]`, no grid.
+    Uniform,
+}
+
+/// Configuration of the sampler room.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SamplerConfig {
+    pub mode: SamplerMode,
+    /// Occupancy cells per axis.
+    pub resolution: u32,
+    /// EMA decay of a queried cell.
+    pub decay: f32,
+    /// Occupied iff cell density > min(threshold, mean density).
+    pub threshold: f32,
+    /// Steps between grid updates ([`OccupancyGrid::should_update`]).
+    pub update_interval: u32,
+    /// Steps during which updates query every cell.
+    pub warmup_steps: u32,
+    /// Cells per brick edge (the BVH's primitives).
+    pub brick_size: u32,
+    /// Marching step as a length in the field's space; 0: AABB diagonal / 1024.
+    pub step_size: f32,
+    /// Samples kept per ray (the nearest).
+    pub max_samples_per_ray: u32,
+    /// Occupied intervals kept per ray.
+    pub max_intervals: u32,
+}
+
+impl Default for SamplerConfig {
+    fn default() -> Self {
+        Self {
+            mode: SamplerMode::Occupancy,
+            resolution: 128,
+            decay: 0.95,
+            threshold: 0.01,
+            update_interval: 16,
+            warmup_steps: 256,
+            brick_size: 8,
+            step_size: 0.0,
+            max_samples_per_ray: 1024,
+            max_intervals: 16,
+        }
+    }
+}
+
+/// Steps per AABB diagonal when [`SamplerConfig::step_size`] is 0 (Instant-NGP).
+pub const DEFAULT_STEPS_PER_DIAGONAL: f32 = 1024.0;
+
+impl SamplerConfig {
+    /// Checks the ranges the kernels rely on.
+    pub fn validate(&self) -> Result<(), SamplerError> {
+        let fail = |m: String| Err(SamplerError::Config(m));
+        if self.resolution == 0 || self.resolution > 1024 {
+            return fail(format!("resolution {} not in 1..=1024", self.resolution));
+        }
+        if self.brick_size == 0 {
+            return fail("brick_size must be at least 1".into());
+        }
+        if self.resolution.div_ceil(self.brick_size) > MAX_BRICKS_PER_AXIS {
+            return fail(format!(
+                "resolution {} / brick_size {} gives more than {MAX_BRICKS_PER_AXIS} bricks per axis",
+                self.resolution, self.brick_size
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.decay) {
+            return fail(format!("decay {} not in [0, 1]", self.decay));
+        }
+        if !(self.threshold >= 0.0 && self.threshold.is_finite()) {
+            return fail(format!("threshold {} must be finite and >= 0", self.threshold));
+        }
+        if self.update_interval == 0 {
+            return fail("update_interval must be at least 1".into());
+        }
+        if !(self.step_size >= 0.0 && self.step_size.is_finite()) {
+            return fail(format!("step_size {} must be finite and >= 0", self.step_size));
+        }
+        if self.max_samples_per_ray == 0 {
+            return fail("max_samples_per_ray must be at least 1".into());
+        }
+        if self.max_intervals == 0 || self.max_intervals > MAX_INTERVALS_LIMIT {
+            return fail(format!("max_intervals {} not in 1..={MAX_INTERVALS_LIMIT}", self.max_intervals));
+        }
+        Ok(())
+    }
+
+    /// The marching step for a scene box: `step_size`, or the diagonal / 1024.
+    pub fn step_for(&self, aabb: [glam::Vec3; 2]) -> f32 {
+        if self.step_size > 0.0 { self.step_size } else { (aabb[1] - aabb[0]).length() / DEFAULT_STEPS_PER_DIAGONAL }
+    }
+}
+
+/// Workgroup grid for `groups` workgroups of a kernel that folds its grid into x and y
+/// (`wid.x + wid.y * nwg.x`), for kernels with their own workgroup size.
+pub(crate) fn fold_groups(gpu: &crate::gpu::Gpu, groups: u32) -> [u32; 3] {
+    let max = gpu.limits().max_compute_workgroups_per_dimension;
+    if groups <= max {
+        [groups, 1, 1]
+    } else {
+        let y = groups.div_ceil(max);
+        [groups.div_ceil(y), y, 1]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sampler_config_defaults_validate_and_roundtrip() {
+        let c = SamplerConfig::default();
+        c.validate().unwrap();
+        let json = serde_json::to_string(&c).unwrap();
+        assert_eq!(serde_json::from_str::<SamplerConfig>(&json).unwrap(), c);
+        // Missing fields take their defaults.
+        let partial: SamplerConfig = serde_json::from_str(r#"{"mode":"uniform","resolution":64}"#).unwrap();
+        assert_eq!(partial.mode, SamplerMode::Uniform);
+        assert_eq!(partial.brick_size, 8);
+        let bad = SamplerConfig { resolution: 512, ..Default::default() };
+        assert!(matches!(bad.validate(), Err(SamplerError::Config(_))));
+        let aabb = [glam::Vec3::splat(-1.0), glam::Vec3::splat(1.0)];
+        assert!((c.step_for(aabb) - 12f32.sqrt() / 1024.0).abs() < 1e-7);
+    }
+}

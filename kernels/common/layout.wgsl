@@ -1,0 +1,28 @@
+// Buffer layouts shared by sampler, field and renderer kernels. Mirror of
+// engine/src/samples.rs (see its module doc for the invariants); keep the two equal.
+
+struct Ray {
+    origin: vec3<f32>,
+    t_min: f32,
+    dir: vec3<f32>,
+    t_max: f32,
+}
+
+struct SampleRange {
+    start: u32,
+    count: u32,
+}
+
+struct Sample {
+    pos: vec3<f32>,
+    t: f32,
+    dir: vec3<f32>,
+    dt: f32,
+}
+
+struct RayOutput {
+    rgb: vec3<f32>,
+    opacity: f32,
+    normal: vec3<f32>,
+    depth: f32,
+}

@@ -1,0 +1,297 @@
+// Hash-grid field: shared bindings 0..2 and the per-sample math (owner:
+// engine/src/field/grid/mod.rs, which documents the math; CPU mirror in
+// engine/src/field/grid/reference.rs). Included by grid_density.wgsl,
+// grid_forward.wgsl and grid_backward.wgsl, which declare their own bindings from 3 on.
+//
+// Layouts (all set by the host, see GridLayout):
+// * table: per level l, `levels[l].size` entries of 2 features starting at entry
+//   `levels[l].offset`; entry e holds features (2e, 2e+1) of the f32 parameter buffer.
+// * weights (vec4 units, row-major [out][in], row stride = in/4):
+//   W1 [width][in_pad] at w1, W2 [16][width] at w2, C1 [width][32] at c1,
+//   C2 [width][width] at c2, C3 [4][width] at c3 (row 3 is padding, always 0).
+// * Per-thread vectors live in `Vec64` (64 floats); only the first n/4 entries are used.
+
+//#include "common/dispatch.wgsl"
+//#include "common/layout.wgsl"
+
+const MAX_LEVELS: u32 = 32u;
+const ACT_TRUNC_EXP: u32 = 0u;
+const ACT_SOFTPLUS: u32 = 1u;
+const FLAG_NORMALS: u32 = 1u;
+
+alias Vec64 = array<vec4<f32>, 16>;
+alias Jac64 = array<vec3<f32>, 64>;
+
+struct Level {
+    // First entry of the level in the table.
+    offset: u32,
+    // Entries of the level: res^3 (dense) or T (hashed, a power of two).
+    size: u32,
+    // Vertices per axis for dense indexing, 0 for hashed levels.
+    res: u32,
+    // pos = p * scale + 0.5, p in [0,1]^3.
+    scale: f32,
+}
+
+struct GridParams {
+    aabb_min: vec3<f32>,
+    n_levels: u32,
+    inv_extent: vec3<f32>,
+    active_levels: u32,
+    in4: u32,
+    width4: u32,
+    activation: u32,
+    flags: u32,
+    w1: u32,
+    w2: u32,
+    c1: u32,
+    c2: u32,
+    c3: u32,
+    n: u32,
+    chunk_start: u32,
+    chunk_len: u32,
+    normal_eps: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+    // Backward scratch: vec4 offset of each of the 11 per-sample regions.
+    scratch: array<vec4<u32>, 3>,
+    levels: array<Level, MAX_LEVELS>,
+}
+
+@group(0) @binding(0) var<uniform> P: GridParams;
+@group(0) @binding(1) var<storage, read> table: array<vec2<f32>>;
+@group(0) @binding(2) var<storage, read> weights: array<vec4<f32>>;
+
+// A position mapped to the unit cube of the AABB; outside points are clamped for the
+// encoding and get zero density (and a zero normal).
+struct UnitPoint {
+    p: vec3<f32>,
+    inside: bool,
+}
+
+fn to_unit(x: vec3<f32>) -> UnitPoint {
+    let q = (x - P.aabb_min) * P.inv_extent;
+    let inside = all(q >= vec3<f32>(0.0)) && all(q <= vec3<f32>(1.0));
+    return UnitPoint(clamp(q, vec3<f32>(0.0), vec3<f32>(1.0)), inside);
+}
+
+// Table entry of integer vertex `c` of level `l`.
+fn corner_entry(l: u32, c: vec3<u32>) -> u32 {
+    let lv = P.levels[l];
+    var idx: u32;
+    if (lv.res != 0u) {
+        let cc = min(c, vec3<u32>(lv.res - 1u));
+        idx = cc.x + lv.res * (cc.y + lv.res * cc.z);
+    } else {
+        idx = (c.x ^ (c.y * 2654435761u) ^ (c.z * 805459861u)) & (lv.size - 1u);
+    }
+    return lv.offset + idx;
+}
+
+// Trilinear weight of corner `bits` for fractional position f, and its gradient w.r.t. f.
+struct CornerWeight {
+    w: f32,
+    dw: vec3<f32>,
+}
+
+fn corner_weight(f: vec3<f32>, bits: vec3<u32>) -> CornerWeight {
+    let bf = vec3<f32>(bits);
+    let wv = select(vec3<f32>(1.0) - f, f, bits == vec3<u32>(1u));
+    let sg = bf * 2.0 - vec3<f32>(1.0);
+    return CornerWeight(wv.x * wv.y * wv.z, vec3<f32>(sg.x * wv.y * wv.z, wv.x * sg.y * wv.z, wv.x * wv.y * sg.z));
+}
+
+fn corner_bits(c: u32) -> vec3<u32> {
+    return vec3<u32>(c & 1u, (c >> 1u) & 1u, (c >> 2u) & 1u);
+}
+
+fn level_active(l: u32) -> bool {
+    return l < P.active_levels;
+}
+
+// Writes e (2 features per level, zero for inactive levels and the padding) and, when
+// `want_jac`, de/dx per encoding dimension (world units).
+fn encode(p: vec3<f32>, want_jac: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {
+    for (var k4 = 0u; k4 < P.in4; k4++) {
+        (*e)[k4] = vec4<f32>(0.0);
+    }
+    for (var l = 0u; l < P.n_levels; l++) {
+        if (!level_active(l)) {
+            (*jac)[2u * l] = vec3<f32>(0.0);
+            (*jac)[2u * l + 1u] = vec3<f32>(0.0);
+            continue;
+        }
+        let scale = P.levels[l].scale;
+        let pos = p * scale + vec3<f32>(0.5);
+        let fl = floor(pos);
+        let f = pos - fl;
+        let c0 = vec3<u32>(fl);
+        var val = vec2<f32>(0.0);
+        var gx = vec2<f32>(0.0);
+        var gy = vec2<f32>(0.0);
+        var gz = vec2<f32>(0.0);
+        for (var c = 0u; c < 8u; c++) {
+            let bits = corner_bits(c);
+            let cw = corner_weight(f, bits);
+            let feat = table[corner_entry(l, c0 + bits)];
+            val += cw.w * feat;
+            gx += cw.dw.x * feat;
+            gy += cw.dw.y * feat;
+            gz += cw.dw.z * feat;
+        }
+        let comp = (l & 1u) * 2u;
+        (*e)[l >> 1u][comp] = val.x;
+        (*e)[l >> 1u][comp + 1u] = val.y;
+        if (want_jac) {
+            let sc = scale * P.inv_extent;
+            (*jac)[2u * l] = vec3<f32>(gx.x, gy.x, gz.x) * sc;
+            (*jac)[2u * l + 1u] = vec3<f32>(gx.y, gy.y, gz.y) * sc;
+        }
+    }
+}
+
+// y = W x, W with 4*rows4 rows and row stride cols4 (vec4) at vec4 offset `off`.
+fn mat_vec(off: u32, rows4: u32, cols4: u32, x: ptr<function, Vec64>, y: ptr<function, Vec64>) {
+    for (var r4 = 0u; r4 < rows4; r4++) {
+        let b = off + 4u * r4 * cols4;
+        var acc = vec4<f32>(0.0);
+        for (var c4 = 0u; c4 < cols4; c4++) {
+            let xv = (*x)[c4];
+            acc += vec4<f32>(
+                dot(weights[b + c4], xv),
+                dot(weights[b + cols4 + c4], xv),
+                dot(weights[b + 2u * cols4 + c4], xv),
+                dot(weights[b + 3u * cols4 + c4], xv),
+            );
+        }
+        (*y)[r4] = acc;
+    }
+}
+
+// y = W^T d (same W layout as mat_vec).
+fn mat_t_vec(off: u32, rows4: u32, cols4: u32, d: ptr<function, Vec64>, y: ptr<function, Vec64>) {
+    for (var c4 = 0u; c4 < cols4; c4++) {
+        var acc = vec4<f32>(0.0);
+        for (var r4 = 0u; r4 < rows4; r4++) {
+            let b = off + 4u * r4 * cols4 + c4;
+            let dv = (*d)[r4];
+            acc += weights[b] * dv.x + weights[b + cols4] * dv.y + weights[b + 2u * cols4] * dv.z
+                + weights[b + 3u * cols4] * dv.w;
+        }
+        (*y)[c4] = acc;
+    }
+}
+
+fn relu_in_place(x: ptr<function, Vec64>, n4: u32) {
+    for (var j4 = 0u; j4 < n4; j4++) {
+        (*x)[j4] = max((*x)[j4], vec4<f32>(0.0));
+    }
+}
+
+// d <- d * relu'(z) where a = relu(z) (relu'(0) = 0).
+fn relu_mask_in_place(d: ptr<function, Vec64>, a: ptr<function, Vec64>, n4: u32) {
+    for (var j4 = 0u; j4 < n4; j4++) {
+        (*d)[j4] = select(vec4<f32>(0.0), (*d)[j4], (*a)[j4] > vec4<f32>(0.0));
+    }
+}
+
+// Density MLP: a1 = relu(W1 e), h = W2 a1 (16 outputs, h[0].x is the pre-activation density).
+fn density_mlp(e: ptr<function, Vec64>, a1: ptr<function, Vec64>, h: ptr<function, Vec64>) {
+    mat_vec(P.w1, P.width4, P.in4, e, a1);
+    relu_in_place(a1, P.width4);
+    mat_vec(P.w2, 4u, P.width4, a1, h);
+}
+
+// Pre-activation density only (occupancy queries): W2 row 0 dotted with a1.
+fn density_h0(a1: ptr<function, Vec64>) -> f32 {
+    var s = 0.0;
+    for (var j4 = 0u; j4 < P.width4; j4++) {
+        s += dot(weights[P.w2 + j4], (*a1)[j4]);
+    }
+    return s;
+}
+
+fn density_act(h0: f32) -> f32 {
+    if (P.activation == ACT_SOFTPLUS) {
+        return max(h0, 0.0) + log(1.0 + exp(-abs(h0)));
+    }
+    return exp(min(h0, 80.0));
+}
+
+// d sigma / d h0 (trunc_exp: exp with the argument clamped to [-15, 15], Instant-NGP).
+fn density_act_d1(h0: f32) -> f32 {
+    if (P.activation == ACT_SOFTPLUS) {
+        return 1.0 / (1.0 + exp(-h0));
+    }
+    return exp(clamp(h0, -15.0, 15.0));
+}
+
+fn density_act_d2(h0: f32) -> f32 {
+    if (P.activation == ACT_SOFTPLUS) {
+        let s = 1.0 / (1.0 + exp(-h0));
+        return s * (1.0 - s);
+    }
+    return exp(clamp(h0, -15.0, 15.0));
+}
+
+// Real spherical harmonics of degree 4 (16 coefficients, tiny-cuda-nn constants) of the
+// unit direction d, written to x[4..8].
+fn sh_encode(dir: vec3<f32>, x: ptr<function, Vec64>) {
+    let len = length(dir);
+    var d = vec3<f32>(0.0, 0.0, 1.0);
+    if (len > 0.0) {
+        d = dir / len;
+    }
+    let xx = d.x * d.x;
+    let yy = d.y * d.y;
+    let zz = d.z * d.z;
+    (*x)[4] = vec4<f32>(0.28209479177387814, -0.48860251190291987 * d.y, 0.48860251190291987 * d.z,
+        -0.48860251190291987 * d.x);
+    (*x)[5] = vec4<f32>(1.0925484305920792 * d.x * d.y, -1.0925484305920792 * d.y * d.z,
+        0.94617469575755997 * zz - 0.31539156525251999, -1.0925484305920792 * d.x * d.z);
+    (*x)[6] = vec4<f32>(0.54627421529603959 * (xx - yy), 0.59004358992664352 * d.y * (yy - 3.0 * xx),
+        2.8906114426405538 * d.x * d.y * d.z, 0.45704579946446572 * d.y * (1.0 - 5.0 * zz));
+    (*x)[7] = vec4<f32>(0.3731763325901154 * d.z * (5.0 * zz - 3.0), 0.45704579946446572 * d.x * (1.0 - 5.0 * zz),
+        1.4453057213202769 * d.z * (xx - yy), 0.59004358992664352 * d.x * (3.0 * yy - xx));
+}
+
+// Colour MLP on xc = [h (16), sh (16)]: ac1 = relu(C1 xc), ac2 = relu(C2 ac1); returns
+// the pre-sigmoid output (w = 0).
+fn color_mlp(xc: ptr<function, Vec64>, ac1: ptr<function, Vec64>, ac2: ptr<function, Vec64>) -> vec4<f32> {
+    mat_vec(P.c1, P.width4, 8u, xc, ac1);
+    relu_in_place(ac1, P.width4);
+    mat_vec(P.c2, P.width4, P.width4, ac1, ac2);
+    relu_in_place(ac2, P.width4);
+    var s = vec4<f32>(0.0);
+    for (var j4 = 0u; j4 < P.width4; j4++) {
+        let a = (*ac2)[j4];
+        let b = P.c3 + j4;
+        s += vec4<f32>(dot(weights[b], a), dot(weights[b + P.width4], a), dot(weights[b + 2u * P.width4], a), 0.0);
+    }
+    return s;
+}
+
+fn sigmoid3(o: vec4<f32>) -> vec3<f32> {
+    return vec3<f32>(1.0) / (vec3<f32>(1.0) + exp(-o.xyz));
+}
+
+// g = dh0/de = W1^T (relu'(z1) * W2[0, :]).
+fn density_dir(a1: ptr<function, Vec64>, g: ptr<function, Vec64>) {
+    var q: Vec64;
+    for (var j4 = 0u; j4 < P.width4; j4++) {
+        q[j4] = select(vec4<f32>(0.0), weights[P.w2 + j4], (*a1)[j4] > vec4<f32>(0.0));
+    }
+    mat_t_vec(P.w1, P.width4, P.in4, &q, g);
+}
+
+// v = J^T g = sum_k g_k de_k/dx.
+fn jac_t_vec(g: ptr<function, Vec64>, jac: ptr<function, Jac64>) -> vec3<f32> {
+    var v = vec3<f32>(0.0);
+    for (var l = 0u; l < P.n_levels; l++) {
+        let gv = (*g)[l >> 1u];
+        let comp = (l & 1u) * 2u;
+        v += gv[comp] * (*jac)[2u * l] + gv[comp + 1u] * (*jac)[2u * l + 1u];
+    }
+    return v;
+}

@@ -1,0 +1,77 @@
+// Adam step over one parameter group (owner: engine/src/optim/adam.rs, which
+// documents the formulas). One invocation per parameter, element-wise, no atomics.
+//
+//   g  = grad                                  (skip the element when sparse and g == 0)
+//   g  = clamp(g, -c, c) * scale               (from the stats buffer, unless applied)
+//   g += wd * w                                (L2 weight decay)
+//   m  = b1 m + (1 - b1) g ;  v = b2 v + (1 - b2) g^2
+//   w -= lr wd w                               (decoupled weight decay, old w)
+//   w -= lr (m / bias1) / (sqrt(v / bias2) + eps)
+
+//#include "common/dispatch.wgsl"
+//#include "optim/grad_stats.wgsl"
+
+struct AdamParams {
+    n: u32,
+    flags: u32,
+    lr: f32,
+    beta1: f32,
+    beta2: f32,
+    eps: f32,
+    // 1 - beta1^t and 1 - beta2^t, computed on the host in f64.
+    bias1: f32,
+    bias2: f32,
+    weight_decay: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+const FLAG_SKIP_ZERO_GRAD: u32 = 1u;
+const FLAG_L2: u32 = 2u;
+const FLAG_DECOUPLED: u32 = 4u;
+const FLAG_SKIP_NONFINITE: u32 = 8u;
+
+@group(0) @binding(0) var<uniform> cfg: AdamParams;
+@group(0) @binding(1) var<storage, read_write> weights: array<f32>;
+@group(0) @binding(2) var<storage, read> grads: array<f32>;
+@group(0) @binding(3) var<storage, read_write> moment1: array<f32>;
+@group(0) @binding(4) var<storage, read_write> moment2: array<f32>;
+@group(0) @binding(5) var<storage, read> stats: array<f32>;
+
+@compute @workgroup_size(WG_SIZE)
+fn adam_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = thread_index(gid, nwg);
+    if (i >= cfg.n) {
+        return;
+    }
+    if ((cfg.flags & FLAG_SKIP_NONFINITE) != 0u && stats[STAT_NONFINITE] > 0.0) {
+        return;
+    }
+    var g = grads[i];
+    if ((cfg.flags & FLAG_SKIP_ZERO_GRAD) != 0u && g == 0.0) {
+        return;
+    }
+    if (stats[STAT_APPLIED] == 0.0) {
+        let clip_value = stats[STAT_CLIP_VALUE];
+        if (clip_value > 0.0) {
+            g = clamp(g, -clip_value, clip_value);
+        }
+        g = g * stats[STAT_SCALE];
+    }
+    var w = weights[i];
+    if ((cfg.flags & FLAG_L2) != 0u) {
+        g = g + cfg.weight_decay * w;
+    }
+    let m = cfg.beta1 * moment1[i] + (1.0 - cfg.beta1) * g;
+    let v = cfg.beta2 * moment2[i] + (1.0 - cfg.beta2) * (g * g);
+    moment1[i] = m;
+    moment2[i] = v;
+    let m_hat = m / cfg.bias1;
+    let v_hat = v / cfg.bias2;
+    var w_new = w - cfg.lr * (m_hat / (sqrt(v_hat) + cfg.eps));
+    if ((cfg.flags & FLAG_DECOUPLED) != 0u) {
+        w_new = w_new - cfg.lr * cfg.weight_decay * w;
+    }
+    weights[i] = w_new;
+}

@@ -1,0 +1,52 @@
+//! The `edgenerf` command-line tool: argument parsing, progress display and file
+//! output. All math lives in the engine crate; each subcommand is a module of `cmd`.
+
+mod cmd;
+
+use clap::{Parser, Subcommand};
+
+/// Sparse-view neural radiance fields with edge-guided regularization, on a hash-grid
+/// engine running in Vulkan compute (an NVIDIA GPU, or lavapipe on the CPU).
+#[derive(Parser)]
+#[command(name = "edgenerf", version, about)]
+struct Cli {
+    /// Use the Vulkan adapter whose name contains this (default: a discrete NVIDIA GPU,
+    /// else any GPU, else lavapipe). Same as the WGPU_ADAPTER_NAME variable.
+    #[arg(long, global = true, value_name = "NAME")]
+    adapter: Option<String>,
+
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print what a scene directory holds: format, images, split, near/far, adapter.
+    Info(cmd::info::Args),
+    /// Synthetic ground-truth scenes (Mitsuba): render them.
+    #[command(subcommand)]
+    Scenes(cmd::scenes::Command),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // The chain of causes, one per line; no backtrace (users act on the message).
+            eprintln!("error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    let gpu_opts = edgenerf::gpu::GpuOptions { adapter: cli.adapter.clone(), disable_float_atomics: false };
+    match cli.command {
+        Command::Info(args) => cmd::info::run(args, &gpu_opts),
+        Command::Scenes(c) => cmd::scenes::run(c),
+    }
+}
