@@ -157,7 +157,7 @@ def build_occlusion() -> list[Shape]:
     s = _room(4.5, -2.0, 3.0, 4.2, wall_color=(0.62, 0.6, 0.56), floor_color=(0.42, 0.4, 0.37))
     s += [
         # a tall pillar far in front of the wall: large discontinuity
-        Shape("pillar", g.box((-1.45, 0.05, 0.0), (-1.1, 0.4, 2.3)), color=(0.2, 0.33, 0.55)),
+        Shape("pillar", g.box((-1.3, 0.05, 0.0), (-0.95, 0.4, 2.3)), color=(0.2, 0.33, 0.55)),
         # a slab hung 0.12 in front of the wall: small discontinuity
         Shape("slab", g.box((-0.6, 2.76, 1.1), (0.9, 2.88, 2.2)), color=(0.7, 0.55, 0.3)),
         # a panel on a post at mid depth, overlapping the slab in most views
@@ -168,7 +168,7 @@ def build_occlusion() -> list[Shape]:
         Shape("cube", _place(g.box((-0.2, -0.2, 0.0), (0.2, 0.2, 0.4)), g.translate((-0.45, -0.35, 0.0)),
                              g.rot_z(30)), color=(0.85, 0.75, 0.35)),
         # a column behind the ball, and a low step near the wall
-        Shape("column", g.cylinder(0.22, 0.0, 1.6, 64).transformed(g.translate((1.55, 1.1, 0.0))),
+        Shape("column", g.cylinder(0.22, 0.0, 1.6, 64).transformed(g.translate((1.4, 1.1, 0.0))),
               color=(0.55, 0.5, 0.7)),
         Shape("step", g.box((-2.4, 2.1, 0.0), (-0.9, 3.0, 0.45)), color=(0.5, 0.45, 0.4)),
         # a thin plank leaning nowhere: floating shelf 0.3 from the wall
@@ -276,7 +276,7 @@ def _mound(X, Y, size=1.2):
     """A bumpy mound that meets the plate with zero height and slope at its border."""
     u, v = X / size + 0.5, Y / size + 0.5
     win = (np.sin(np.pi * np.clip(u, 0, 1)) * np.sin(np.pi * np.clip(v, 0, 1))) ** 2
-    bumps = 0.1 + 0.035 * np.sin(9.0 * X + 0.5) * np.cos(8.0 * Y) + 0.025 * np.cos(13.0 * X - 6.0 * Y)
+    bumps = 0.2 + 0.08 * np.sin(7.5 * X + 0.5) * np.cos(6.5 * Y) + 0.04 * np.cos(11.0 * X - 5.0 * Y)
     return win * bumps
 
 
@@ -385,9 +385,9 @@ _add(SceneSpec(
                  "panel on a post at mid depth, a ball and a cube in front of it, a slab hung 0.12 in "
                  "front of the wall, a floating shelf and a low step. Plain albedo, so nearly every "
                  "image edge is an occlusion boundary. Forward-facing (LLFF-like) cameras."),
-    layout="forward", aabb=((-4.5, -2.0, 0.0), (4.5, 3.0, 4.2)), near=1.5, far=9.0, fov_x=50.0, aspect=4 / 3,
+    layout="forward", aabb=((-4.5, -2.0, 0.0), (4.5, 3.0, 4.2)), near=1.5, far=9.0, fov_x=52.0, aspect=4 / 3,
     background="geometry", build=build_occlusion,
-    cameras=forward_cameras(center=(-0.1, -2.8, 1.2), half_extent=(0.7, 0.4), target=(-0.1, 1.5, 0.95)),
+    cameras=forward_cameras(center=(0.0, -3.0, 1.2), half_extent=(0.7, 0.4), target=(0.0, 1.5, 0.95)),
     sun_dir=(0.5, 0.6, -0.62),
 ))
 
@@ -441,9 +441,9 @@ _add(SceneSpec(
     description=("A cluttered table against a wall, seen LLFF-style: camera centres on a small plane in "
                  "front, all facing forward. Books, mugs, a bowl with an orange, an apple, a bottle, a "
                  "plate, a small box, and a chair behind the table; wood-striped table top."),
-    layout="forward", aabb=((-4.0, -1.2, 0.0), (4.0, 2.4, 3.2)), near=1.0, far=7.0, fov_x=55.0, aspect=4 / 3,
+    layout="forward", aabb=((-4.0, -1.2, 0.0), (4.0, 2.4, 3.2)), near=0.8, far=6.0, fov_x=50.0, aspect=4 / 3,
     background="geometry", build=build_table,
-    cameras=forward_cameras(center=(0.0, -2.3, 1.55), half_extent=(0.45, 0.25), target=(0.0, 0.5, 0.8)),
+    cameras=forward_cameras(center=(0.0, -1.55, 1.45), half_extent=(0.35, 0.2), target=(0.0, 0.45, 0.82)),
     sun_dir=(0.45, 0.5, -0.74),
 ))
 
@@ -453,9 +453,9 @@ _add(SceneSpec(
                  "with a thin railing, lantern and conical roof, door and windows) on a transparent "
                  "background. Training cameras at random on the upper hemisphere (elevation 5-75 deg), "
                  "test cameras on a ring at 25 deg elevation."),
-    layout="turntable", aabb=((-0.6, -0.6, 0.0), (0.6, 0.6, 1.85)), near=2.0, far=6.0, fov_x=40.0, aspect=1.0,
+    layout="turntable", aabb=((-0.6, -0.6, 0.0), (0.6, 0.6, 1.85)), near=2.0, far=4.6, fov_x=40.0, aspect=1.0,
     background="transparent", build=build_turntable,
-    cameras=turntable_cameras(radius=3.8, target=(0.0, 0.0, 0.85), elev_min=5.0, elev_max=75.0, test_elev=25.0,
+    cameras=turntable_cameras(radius=3.3, target=(0.0, 0.0, 0.85), elev_min=5.0, elev_max=75.0, test_elev=25.0,
                               seed=3),
     sun_dir=(0.4, 0.5, -0.77),
 ))

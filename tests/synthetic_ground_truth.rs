@@ -9,9 +9,10 @@
 //!   hit points inside the aabb and depths inside [near, far];
 //! * reprojection: the GT depth of each view, back-projected with `Camera::pixel_ray`
 //!   and projected into its nearest view with `Camera::project`, agrees with that view's
-//!   GT depth wherever it sees a continuous surface (>= 95 % within 0.5 %);
+//!   GT depth wherever it sees a continuous surface and the point is not occluded there
+//!   (>= 95 % within 0.5 %, median < 1e-4), with < 2 % free-space violations;
 //! * normals from depth: on flat regions the normal of the back-projected point grid
-//!   matches the GT normal (median < 0.5 deg);
+//!   matches the GT normal (median < 0.1 deg, 95th percentile < 0.5 deg);
 //! * a fresh Mitsuba render of one scene matches the committed one (`render.py --check`),
 //!   when a Mitsuba venv is available (see `fresh_render_matches_committed`).
 
@@ -54,6 +55,13 @@ fn gt(v: &View) -> (&[f32], &[[f32; 3]], &[f32]) {
 fn point(v: &View, depth: &[f32], x: u32, y: u32) -> Vec3 {
     let t = depth[(y * v.camera.width + x) as usize];
     v.camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5).at(t)
+}
+
+/// Angle between two vectors in degrees, robust near 0 and independent of their lengths
+/// (the stored normals are unit only to ~3e-5, which `acos` of a dot product would turn
+/// into a spurious ~0.5 deg).
+fn angle_deg(a: Vec3, b: Vec3) -> f32 {
+    a.cross(b).length().atan2(a.dot(b)).to_degrees()
 }
 
 fn median(v: &mut [f32]) -> f32 {
@@ -129,7 +137,7 @@ fn masks_normals_and_depth_ranges_are_consistent() {
                     dmax = dmax.max(d[i]);
                     assert!((nv.length() - 1.0).abs() < 1e-3, "{name}/{} ({x},{y}): |n| = {}", v.name, nv.length());
                     let ray = v.camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
-                    assert!(nv.dot(ray.dir) <= 1e-4, "{name}/{} ({x},{y}): normal faces away", v.name);
+                    assert!(nv.dot(ray.dir) <= 2e-4, "{name}/{} ({x},{y}): normal faces away", v.name);
                     let p = ray.at(d[i]);
                     assert!(p.cmpge(lo).all() && p.cmple(hi).all(), "{name}/{} ({x},{y}): {p} outside aabb", v.name);
                 }
@@ -193,7 +201,11 @@ fn depth_reprojects_consistently_between_views() {
                         continue; // not a continuous surface around uv in b
                     }
                     let interp = c[0] * (1.0 - tx) * (1.0 - ty) + c[1] * tx * (1.0 - ty) + c[2] * (1.0 - tx) * ty + c[3] * tx * ty;
-                    rel.push(((interp - dist) / dist).abs());
+                    let r = (interp - dist) / dist;
+                    if r < -5e-3 {
+                        continue; // the point lies behind the surface b sees: occluded in b
+                    }
+                    rel.push(r.abs());
                 }
             }
         }
@@ -208,14 +220,14 @@ fn depth_reprojects_consistently_between_views() {
             100.0 * vfrac
         );
         assert!(within >= 0.95, "{name}: only {:.2}% of co-visible pixels agree within 0.5%", 100.0 * within);
-        assert!(med < 5e-4, "{name}: median relative reprojection error {med}");
+        // clean renders: 1e-5 to 4e-5; a half-pixel principal-point error: >= 2e-4
+        assert!(med < 1e-4, "{name}: median relative reprojection error {med}");
         assert!(vfrac < 0.02, "{name}: {:.2}% free-space violations", 100.0 * vfrac);
     }
 }
 
 #[test]
 fn normals_match_depth_on_flat_regions() {
-    let cos_tol = 0.5f32.to_radians().cos();
     for name in SCENES {
         let scene = load(name);
         let mut angles = Vec::new();
@@ -232,7 +244,7 @@ fn normals_match_depth_on_flat_regions() {
                     for dy in -1i32..=1 {
                         for dx in -1i32..=1 {
                             let k = idx((x as i32 + dx) as u32, (y as i32 + dy) as u32);
-                            flat &= d[k] > 0.0 && Vec3::from(n[k]).dot(nc) > cos_tol;
+                            flat &= d[k] > 0.0 && angle_deg(Vec3::from(n[k]), nc) < 0.5;
                         }
                     }
                     if !flat {
@@ -250,7 +262,7 @@ fn normals_match_depth_on_flat_regions() {
                     if nd.dot(v.camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5).dir) > 0.0 {
                         nd = -nd;
                     }
-                    angles.push(nd.dot(nc).clamp(-1.0, 1.0).acos().to_degrees());
+                    angles.push(angle_deg(nd, nc));
                 }
             }
         }
@@ -259,8 +271,10 @@ fn normals_match_depth_on_flat_regions() {
         let med = median(&mut angles);
         let p95 = percentile(&mut angles, 0.95);
         println!("{name:10} normals vs depth: {n} flat px, median {med:.3} deg, 95th pct {p95:.3} deg");
-        assert!(med < 0.5, "{name}: median angle {med} deg between GT normals and depth-derived normals");
-        assert!(p95 < 3.0, "{name}: 95th percentile angle {p95} deg");
+        // clean renders: ~0.03 / ~0.1 deg (the limit of the stored depth's precision); a
+        // half-pixel principal-point error gives > 0.12 deg median even on forward scenes
+        assert!(med < 0.1, "{name}: median angle {med} deg between GT normals and depth-derived normals");
+        assert!(p95 < 0.5, "{name}: 95th percentile angle {p95} deg");
     }
 }
 

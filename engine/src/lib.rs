@@ -9,7 +9,10 @@
 pub mod data;
 pub mod field;
 pub mod gpu;
+pub mod loss;
 pub mod optim;
 pub mod render;
 pub mod samples;
+pub mod train;
+pub mod viz;
 pub mod sampler;

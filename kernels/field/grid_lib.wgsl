@@ -61,7 +61,9 @@ struct GridParams {
 
 @group(0) @binding(0) var<uniform> P: GridParams;
 @group(0) @binding(1) var<storage, read> table: array<vec2<f32>>;
-@group(0) @binding(2) var<storage, read> weights: array<vec4<f32>>;
+// All MLP weights of the largest configuration (width 64, 32 levels): 2880 vec4.
+const MAX_WEIGHTS4: u32 = 2880u;
+@group(0) @binding(2) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS4>;
 
 // A position mapped to the unit cube of the AABB; outside points are clamped for the
 // encoding and get zero density (and a zero normal).

@@ -1,9 +1,10 @@
 // Weight gradients of the hash-grid field's MLPs (owner: engine/src/field/grid/mod.rs):
 // grad[o][i] += sum_s d_s[o] x_s[i] over the samples of one backward chunk, with d and
 // x per-sample rows of the backward scratch (see grid_backward.wgsl). One thread per
-// (4x4 tile of the weight matrix, group of `spt` samples): it sums its samples in
-// registers and adds the 16 partial sums with float atomics, so there is one atomic
-// per weight per sample group, not per sample. With `mask_d`, d is replaced by
+// (8x8 tile of the weight matrix, group of `spt` samples): it sums its samples in 64
+// registers (4 vec4 loads per 64 FMAs) and adds the partial sums with float atomics,
+// so there is one atomic per weight per sample group, not per sample. Rows/columns
+// past the matrix (when out4 or in4 is odd) are read but never written. With `mask_d`, d is replaced by
 // [d > 0] (the ReLU mask m from the stored activations a1).
 
 //#include "common/dispatch.wgsl"
@@ -15,6 +16,9 @@ struct OuterParams {
     x_stride: u32,
     out4: u32,
     in4: u32,
+    // tiles of 8 columns: ceil(in4 / 2)
+    tiles_i: u32,
+    tiles_o: u32,
     n_out: u32,
     mask_d: u32,
     grad_off: u32,
@@ -23,8 +27,6 @@ struct OuterParams {
     chunk_len: u32,
     spt: u32,
     capacity: u32,
-    _pad0: u32,
-    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: OuterParams;
@@ -35,7 +37,7 @@ struct OuterParams {
 @compute @workgroup_size(WG_SIZE)
 fn outer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let t = thread_index(gid, nwg);
-    let tiles = params.out4 * params.in4;
+    let tiles = params.tiles_o * params.tiles_i;
     let tile = t % tiles;
     let sg = t / tiles;
     let total = min(count[0], params.capacity);
@@ -48,33 +50,54 @@ fn outer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         return;
     }
     let s1 = min(s0 + params.spt, n_valid);
-    let o4 = tile / params.in4;
-    let i4 = tile % params.in4;
-    var a0 = vec4<f32>(0.0);
-    var a1 = vec4<f32>(0.0);
-    var a2 = vec4<f32>(0.0);
-    var a3 = vec4<f32>(0.0);
+    let o4 = 2u * (tile / params.tiles_i);
+    let i4 = 2u * (tile % params.tiles_i);
+    // a<r><c>: rows 4(o4+r).., columns of x vec4 (i4 + c / 4), component c % 4.
+    var a00 = vec4<f32>(0.0); var a01 = vec4<f32>(0.0); var a02 = vec4<f32>(0.0); var a03 = vec4<f32>(0.0);
+    var a04 = vec4<f32>(0.0); var a05 = vec4<f32>(0.0); var a06 = vec4<f32>(0.0); var a07 = vec4<f32>(0.0);
+    var a10 = vec4<f32>(0.0); var a11 = vec4<f32>(0.0); var a12 = vec4<f32>(0.0); var a13 = vec4<f32>(0.0);
+    var a14 = vec4<f32>(0.0); var a15 = vec4<f32>(0.0); var a16 = vec4<f32>(0.0); var a17 = vec4<f32>(0.0);
     for (var s = s0; s < s1; s++) {
-        var d = scratch[params.d_off + s * params.d_stride + o4];
+        let db = params.d_off + s * params.d_stride + o4;
+        var d0 = scratch[db];
+        var d1 = scratch[db + 1u];
         if (params.mask_d != 0u) {
-            d = select(vec4<f32>(0.0), vec4<f32>(1.0), d > vec4<f32>(0.0));
+            d0 = select(vec4<f32>(0.0), vec4<f32>(1.0), d0 > vec4<f32>(0.0));
+            d1 = select(vec4<f32>(0.0), vec4<f32>(1.0), d1 > vec4<f32>(0.0));
         }
-        let x = scratch[params.x_off + s * params.x_stride + i4];
-        a0 += d * x.x;
-        a1 += d * x.y;
-        a2 += d * x.z;
-        a3 += d * x.w;
+        let xb = params.x_off + s * params.x_stride + i4;
+        let x0 = scratch[xb];
+        let x1 = scratch[xb + 1u];
+        a00 += d0 * x0.x; a01 += d0 * x0.y; a02 += d0 * x0.z; a03 += d0 * x0.w;
+        a04 += d0 * x1.x; a05 += d0 * x1.y; a06 += d0 * x1.z; a07 += d0 * x1.w;
+        a10 += d1 * x0.x; a11 += d1 * x0.y; a12 += d1 * x0.z; a13 += d1 * x0.w;
+        a14 += d1 * x1.x; a15 += d1 * x1.y; a16 += d1 * x1.z; a17 += d1 * x1.w;
+    }
+    write_tile(o4, i4, a00, a01, a02, a03, a04, a05, a06, a07);
+    write_tile(o4 + 1u, i4, a10, a11, a12, a13, a14, a15, a16, a17);
+}
+
+// Adds rows 4 r4 .. 4 r4 + 3, columns 4 i4 .. 4 i4 + 7 of a tile (column c in a<c>).
+fn write_tile(r4: u32, i4: u32, c0: vec4<f32>, c1: vec4<f32>, c2: vec4<f32>, c3: vec4<f32>, c4: vec4<f32>,
+              c5: vec4<f32>, c6: vec4<f32>, c7: vec4<f32>) {
+    if (r4 >= params.out4) {
+        return;
+    }
+    var n_cols = 8u;
+    if (i4 + 1u >= params.in4) {
+        n_cols = 4u;
     }
     for (var r = 0u; r < 4u; r++) {
-        let o = 4u * o4 + r;
+        let o = 4u * r4 + r;
         if (o >= params.n_out) {
-            break;
+            return;
         }
         let row = params.grad_off + o * params.grad_stride + 4u * i4;
-        let v = vec4<f32>(a0[r], a1[r], a2[r], a3[r]);
-        for (var c = 0u; c < 4u; c++) {
+        let lo = vec4<f32>(c0[r], c1[r], c2[r], c3[r]);
+        let hi = vec4<f32>(c4[r], c5[r], c6[r], c7[r]);
+        for (var c = 0u; c < n_cols; c++) {
             let idx = row + c;
-            let val = v[c];
+            let val = select(hi[c & 3u], lo[c & 3u], c < 4u);
             if (val != 0.0) {
                 atomicAddF32(grad, idx, val);
             }

@@ -114,6 +114,9 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var acc_depth = 0.0;
     var k = 0u;
     for (; k < range.count; k++) {
+        if (T < params.t_threshold) {
+            break;
+        }
         let s = range.start + k;
         let smp = samples[s];
         let tau = density[s] * smp.dt;

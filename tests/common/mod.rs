@@ -13,7 +13,12 @@ use std::path::PathBuf;
 pub fn data_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("EDGENERF_DATA")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("shared").join("data"));
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("..")
+                .join("shared")
+                .join("data")
+        });
     if dir.is_dir() {
         return Some(dir);
     }
@@ -24,7 +29,10 @@ pub fn data_dir() -> Option<PathBuf> {
             dir.display()
         );
     }
-    eprintln!("skipping: real data not found at {}, set EDGENERF_DATA", dir.display());
+    eprintln!(
+        "skipping: real data not found at {}, set EDGENERF_DATA",
+        dir.display()
+    );
     None
 }
 
@@ -36,8 +44,14 @@ pub fn scene_dir(rel: &str) -> Option<PathBuf> {
         return Some(dir);
     }
     if std::env::var("EDGENERF_REQUIRE_DATA").is_ok_and(|v| v == "1") {
-        panic!("scene {} not found but EDGENERF_REQUIRE_DATA=1", dir.display());
+        panic!(
+            "scene {} not found but EDGENERF_REQUIRE_DATA=1",
+            dir.display()
+        );
     }
-    eprintln!("skipping: scene not found at {}, set EDGENERF_DATA", dir.display());
+    eprintln!(
+        "skipping: scene not found at {}, set EDGENERF_DATA",
+        dir.display()
+    );
     None
 }

@@ -2,6 +2,7 @@
 //! output. All math lives in the engine crate; each subcommand is a module of `cmd`.
 
 mod cmd;
+mod output;
 
 use clap::{Parser, Subcommand};
 
@@ -23,6 +24,10 @@ struct Cli {
 enum Command {
     /// Print what a scene directory holds: format, images, split, near/far, adapter.
     Info(cmd::info::Args),
+    /// Train a field on a scene (progress, checkpoints, log, test evaluation).
+    Train(cmd::train::Args),
+    /// Render views of a trained run: RGB, depth, normals, opacity.
+    Render(cmd::render::Args),
     /// Synthetic ground-truth scenes (Mitsuba): render them.
     #[command(subcommand)]
     Scenes(cmd::scenes::Command),
@@ -47,6 +52,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     let gpu_opts = edgenerf::gpu::GpuOptions { adapter: cli.adapter.clone(), disable_float_atomics: false };
     match cli.command {
         Command::Info(args) => cmd::info::run(args, &gpu_opts),
+        Command::Train(args) => cmd::train::run(args, &gpu_opts),
+        Command::Render(args) => cmd::render::run(args, &gpu_opts),
         Command::Scenes(c) => cmd::scenes::run(c),
     }
 }

@@ -28,7 +28,9 @@ use std::path::{Path, PathBuf};
 use glam::{Mat4, Vec3};
 use serde::Deserialize;
 
-use super::image_io::{SizeGuard, file_stem, load_depth_exr, load_normal_exr, read_view_image, read_view_mask};
+use super::image_io::{
+    SizeGuard, file_stem, load_depth_exr, load_normal_exr, read_view_image, read_view_mask,
+};
 use super::split::{Split, subset_split};
 use super::{Camera, DataError, LoadOptions, Scene, SceneFormat, View};
 
@@ -64,7 +66,10 @@ struct Frame {
 
 fn read_transforms(path: &Path) -> Result<Transforms, DataError> {
     let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|source| DataError::Json { path: path.to_path_buf(), source })
+    serde_json::from_str(&text).map_err(|source| DataError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// `rel` (optionally starting with `./`) under `root`.
@@ -82,7 +87,10 @@ fn find_image(root: &Path, file_path: &str) -> Option<PathBuf> {
     if base.is_file() {
         return Some(base);
     }
-    IMAGE_EXTENSIONS.iter().map(|ext| PathBuf::from(format!("{}.{ext}", base.display()))).find(|p| p.is_file())
+    IMAGE_EXTENSIONS
+        .iter()
+        .map(|ext| PathBuf::from(format!("{}.{ext}", base.display())))
+        .find(|p| p.is_file())
 }
 
 impl Transforms {
@@ -104,7 +112,10 @@ impl Transforms {
         }
         match self.camera_angle_x {
             Some(angle) => Ok(Camera::from_fov_x(width, height, angle, c2w)),
-            None => Err(DataError::invalid(json, "no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h")),
+            None => Err(DataError::invalid(
+                json,
+                "no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h",
+            )),
         }
     }
 }
@@ -121,21 +132,42 @@ impl Loader<'_> {
     fn frame(&mut self, json: &Path, t: &Transforms, i: usize) -> Result<View, DataError> {
         let frame = &t.frames[i];
         let what = || format!("frame {i} ('{}') of {}", frame.file_path, json.display());
-        let path = find_image(self.root, &frame.file_path)
-            .ok_or_else(|| DataError::MissingImage { path: resolve(self.root, &frame.file_path), pose: what() })?;
+        let path =
+            find_image(self.root, &frame.file_path).ok_or_else(|| DataError::MissingImage {
+                path: resolve(self.root, &frame.file_path),
+                pose: what(),
+            })?;
         let c2w = Mat4::from_cols_array_2d(&frame.transform_matrix).transpose();
         if !c2w.is_finite() {
-            return Err(DataError::NonFinite { path: json.to_path_buf(), what: format!("transform_matrix of {}", what()) });
+            return Err(DataError::NonFinite {
+                path: json.to_path_buf(),
+                what: format!("transform_matrix of {}", what()),
+            });
         }
-        let img = read_view_image(&path, self.opts.load_images, self.opts.background, &mut self.guard)?;
+        let img = read_view_image(
+            &path,
+            self.opts.load_images,
+            self.opts.background,
+            &mut self.guard,
+        )?;
         let size = (img.info.width, img.info.height);
         self.any_alpha |= img.info.has_alpha;
         let camera = t.camera(json, size.0, size.1, c2w)?;
         if !camera.is_finite() {
-            return Err(DataError::NonFinite { path: json.to_path_buf(), what: format!("intrinsics of {}", what()) });
+            return Err(DataError::NonFinite {
+                path: json.to_path_buf(),
+                what: format!("intrinsics of {}", what()),
+            });
         }
-        let mut view =
-            View { name: file_stem(&path), path, camera, image: img.image, mask: img.alpha, depth: None, normal: None };
+        let mut view = View {
+            name: file_stem(&path),
+            path,
+            camera,
+            image: img.image,
+            mask: img.alpha,
+            depth: None,
+            normal: None,
+        };
         if !self.opts.load_images {
             return Ok(view);
         }
@@ -171,14 +203,26 @@ impl Loader<'_> {
 pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     let train_json = root.join("transforms_train.json");
     let train = read_transforms(&train_json)?;
-    let test_json = ["transforms_test.json", "transforms_val.json"].map(|f| root.join(f)).into_iter().find(|p| p.is_file());
+    let test_json = ["transforms_test.json", "transforms_val.json"]
+        .map(|f| root.join(f))
+        .into_iter()
+        .find(|p| p.is_file());
     let test = test_json.as_deref().map(read_transforms).transpose()?;
     if train.frames.is_empty() {
-        return Err(DataError::invalid(&train_json, "the file lists no frames; add at least one training frame"));
+        return Err(DataError::invalid(
+            &train_json,
+            "the file lists no frames; add at least one training frame",
+        ));
     }
 
-    let selected = subset_split(train.frames.len(), opts.views).map_err(|m| DataError::invalid(&train_json, m))?;
-    let mut loader = Loader { root, opts, guard: SizeGuard::default(), any_alpha: false };
+    let selected = subset_split(train.frames.len(), opts.views)
+        .map_err(|m| DataError::invalid(&train_json, m))?;
+    let mut loader = Loader {
+        root,
+        opts,
+        guard: SizeGuard::default(),
+        any_alpha: false,
+    };
     let mut views = Vec::new();
     for &i in &selected {
         views.push(loader.frame(&train_json, &train, i)?);
@@ -189,27 +233,45 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             views.push(loader.frame(json, test, i)?);
         }
     }
-    let split = Split { train: (0..n_train).collect(), test: (n_train..views.len()).collect() };
+    let split = Split {
+        train: (0..n_train).collect(),
+        test: (n_train..views.len()).collect(),
+    };
 
     let near = train.near.unwrap_or(DEFAULT_NEAR_FAR.0);
     let far = train.far.unwrap_or(DEFAULT_NEAR_FAR.1);
     if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {
-        return Err(DataError::invalid(&train_json, format!("near {near} / far {far}: need 0 <= near < far")));
+        return Err(DataError::invalid(
+            &train_json,
+            format!("near {near} / far {far}: need 0 <= near < far"),
+        ));
     }
     let aabb = match train.aabb {
         Some([lo, hi]) => [Vec3::from(lo), Vec3::from(hi)],
-        None if train.near.is_none() && train.far.is_none() => {
-            [Vec3::splat(-DEFAULT_HALF_EXTENT), Vec3::splat(DEFAULT_HALF_EXTENT)]
-        }
+        None if train.near.is_none() && train.far.is_none() => [
+            Vec3::splat(-DEFAULT_HALF_EXTENT),
+            Vec3::splat(DEFAULT_HALF_EXTENT),
+        ],
         None => {
             let n = n_train.max(1) as f32;
-            let mean_dist = views[..n_train].iter().map(|v| v.camera.origin().length()).sum::<f32>() / n;
-            let half = if mean_dist > near { mean_dist - near } else { 0.5 * (far - near) };
+            let mean_dist = views[..n_train]
+                .iter()
+                .map(|v| v.camera.origin().length())
+                .sum::<f32>()
+                / n;
+            let half = if mean_dist > near {
+                mean_dist - near
+            } else {
+                0.5 * (far - near)
+            };
             [Vec3::splat(-half), Vec3::splat(half)]
         }
     };
     if !(aabb[0].is_finite() && aabb[1].is_finite() && aabb[0].cmplt(aabb[1]).all()) {
-        return Err(DataError::invalid(&train_json, "aabb must be [[minx, miny, minz], [maxx, maxy, maxz]] with min < max"));
+        return Err(DataError::invalid(
+            &train_json,
+            "aabb must be [[minx, miny, minz], [maxx, maxy, maxz]] with min < max",
+        ));
     }
     Ok(Scene {
         root: root.to_path_buf(),

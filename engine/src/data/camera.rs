@@ -49,7 +49,15 @@ impl Camera {
     /// view of `angle_x` radians (NeRF-synthetic's `camera_angle_x`; square pixels).
     pub fn from_fov_x(width: u32, height: u32, angle_x: f32, c2w: Mat4) -> Camera {
         let f = 0.5 * width as f32 / (0.5 * angle_x).tan();
-        Camera { width, height, fx: f, fy: f, cx: 0.5 * width as f32, cy: 0.5 * height as f32, c2w }
+        Camera {
+            width,
+            height,
+            fx: f,
+            fy: f,
+            cx: 0.5 * width as f32,
+            cy: 0.5 * height as f32,
+            c2w,
+        }
     }
 
     /// The same camera for an image resized to `width x height`: intrinsics scale with
@@ -57,7 +65,15 @@ impl Camera {
     pub fn resized(&self, width: u32, height: u32) -> Camera {
         let sx = width as f32 / self.width as f32;
         let sy = height as f32 / self.height as f32;
-        Camera { width, height, fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, c2w: self.c2w }
+        Camera {
+            width,
+            height,
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            c2w: self.c2w,
+        }
     }
 
     /// Camera centre in world space.
@@ -77,7 +93,10 @@ impl Camera {
 
     /// Whether all intrinsics and the pose are finite.
     pub fn is_finite(&self) -> bool {
-        [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite()) && self.c2w.is_finite()
+        [self.fx, self.fy, self.cx, self.cy]
+            .iter()
+            .all(|v| v.is_finite())
+            && self.c2w.is_finite()
     }
 
     /// Camera-space direction (not normalised, `z = -1`) through image point `(px, py)`.
@@ -88,8 +107,15 @@ impl Camera {
     /// The world-space ray through image point `(px, py)` (continuous pixel coordinates:
     /// pass `x + 0.5, y + 0.5` for the centre of pixel `(x, y)`).
     pub fn pixel_ray(&self, px: f32, py: f32) -> Ray {
-        let d = self.c2w.transform_vector3(self.camera_dir(px, py)).normalize();
-        Ray { origin: self.origin(), dir: d, z_scale: d.dot(self.forward()) }
+        let d = self
+            .c2w
+            .transform_vector3(self.camera_dir(px, py))
+            .normalize();
+        Ray {
+            origin: self.origin(),
+            dir: d,
+            z_scale: d.dot(self.forward()),
+        }
     }
 
     /// Rays through the centres of all pixels, row-major.
@@ -117,7 +143,10 @@ impl Camera {
         if z <= 0.0 || !z.is_finite() {
             return None;
         }
-        Some((Vec2::new(self.cx + self.fx * q.x / z, self.cy - self.fy * q.y / z), z))
+        Some((
+            Vec2::new(self.cx + self.fx * q.x / z, self.cy - self.fy * q.y / z),
+            z,
+        ))
     }
 
     /// Whether continuous pixel coordinates lie inside the image.
@@ -159,7 +188,11 @@ impl NdcParams {
             ay * (d.y / d.z - o.y / o.z),
             -2.0 * self.near / o.z,
         );
-        Ray { origin, dir, z_scale: 1.0 }
+        Ray {
+            origin,
+            dir,
+            z_scale: 1.0,
+        }
     }
 
     /// Maps a world point (in front of the near plane, `z < 0`) to NDC.
@@ -186,7 +219,15 @@ mod tests {
     fn test_camera() -> Camera {
         let rot = Quat::from_euler(glam::EulerRot::YXZ, 0.4, -0.3, 0.1);
         let c2w = Mat4::from_rotation_translation(rot, Vec3::new(0.5, -1.0, 3.0));
-        Camera { width: 64, height: 48, fx: 70.0, fy: 72.0, cx: 31.0, cy: 25.0, c2w }
+        Camera {
+            width: 64,
+            height: 48,
+            fx: 70.0,
+            fy: 72.0,
+            cx: 31.0,
+            cy: 25.0,
+            c2w,
+        }
     }
 
     #[test]
@@ -211,7 +252,10 @@ mod tests {
     #[test]
     fn opengl_frame_orientation() {
         // Identity pose: a pixel right of / above the centre looks to +x / +y, forward is -z.
-        let cam = Camera { c2w: Mat4::IDENTITY, ..test_camera() };
+        let cam = Camera {
+            c2w: Mat4::IDENTITY,
+            ..test_camera()
+        };
         let r = cam.pixel_ray(60.0, 25.0);
         assert!(r.dir.x > 0.0 && r.dir.z < 0.0);
         let u = cam.pixel_ray(31.0, 2.0);
@@ -224,21 +268,43 @@ mod tests {
 
     #[test]
     fn ndc_of_known_rays() {
-        let ndc = NdcParams { focal_x: 100.0, focal_y: 100.0, width: 200.0, height: 100.0, near: 1.0 };
+        let ndc = NdcParams {
+            focal_x: 100.0,
+            focal_y: 100.0,
+            width: 200.0,
+            height: 100.0,
+            near: 1.0,
+        };
         // The optical axis ray from the origin: NDC origin (0, 0, -1), direction (0, 0, 2).
-        let r = ndc.ray_to_ndc(Ray { origin: Vec3::ZERO, dir: -Vec3::Z, z_scale: 1.0 });
+        let r = ndc.ray_to_ndc(Ray {
+            origin: Vec3::ZERO,
+            dir: -Vec3::Z,
+            z_scale: 1.0,
+        });
         assert!((r.origin - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
         assert!((r.dir - Vec3::new(0.0, 0.0, 2.0)).length() < 1e-6);
         // A ray through a corner-ish direction (x/z = -1 means the right image border
         // when 2f/W = 1): NDC x goes to 1 at t = 1 (infinity).
         let dir = Vec3::new(1.0, 0.5, -1.0).normalize();
-        let r = ndc.ray_to_ndc(Ray { origin: Vec3::new(0.2, -0.1, 0.5), dir, z_scale: 1.0 });
+        let r = ndc.ray_to_ndc(Ray {
+            origin: Vec3::new(0.2, -0.1, 0.5),
+            dir,
+            z_scale: 1.0,
+        });
         assert!((r.origin.z + 1.0).abs() < 1e-6 && (r.dir.z - 2.0).abs() < 1e-6);
         let far = r.at(1.0);
         // At infinity the NDC xy of a ray is its direction's projection: -(2f/W) dx/dz.
-        assert!((far.x - 1.0).abs() < 1e-5 && (far.y - 1.0).abs() < 1e-5 && (far.z - 1.0).abs() < 1e-5, "{far}");
+        assert!(
+            (far.x - 1.0).abs() < 1e-5 && (far.y - 1.0).abs() < 1e-5 && (far.z - 1.0).abs() < 1e-5,
+            "{far}"
+        );
         // Intermediate points agree with the point mapping (NDC is a projective map).
-        let world = Ray { origin: Vec3::new(0.2, -0.1, 0.5), dir, z_scale: 1.0 }.at(4.0);
+        let world = Ray {
+            origin: Vec3::new(0.2, -0.1, 0.5),
+            dir,
+            z_scale: 1.0,
+        }
+        .at(4.0);
         let p = ndc.point_to_ndc(world);
         let t = (p.z + 1.0) / 2.0;
         assert!((r.at(t) - p).length() < 1e-4, "{} vs {p}", r.at(t));

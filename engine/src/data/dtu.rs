@@ -94,7 +94,11 @@ fn matrix4(npz: &Npz, name: &str, a: &NpyArray) -> Result<DMat4, DataError> {
     }
     check_finite(npz.path(), name, a)?;
     let r = |i: usize| {
-        if i < rows { DVec4::from_slice(&a.data[i * 4..i * 4 + 4]) } else { DVec4::new(0.0, 0.0, 0.0, 1.0) }
+        if i < rows {
+            DVec4::from_slice(&a.data[i * 4..i * 4 + 4])
+        } else {
+            DVec4::new(0.0, 0.0, 0.0, 1.0)
+        }
     };
     Ok(DMat4::from_cols(r(0), r(1), r(2), r(3)).transpose())
 }
@@ -103,7 +107,10 @@ fn check_finite(path: &Path, name: &str, a: &NpyArray) -> Result<(), DataError> 
     if a.data.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(DataError::NonFinite { path: path.to_path_buf(), what: format!("{name} contains NaN or infinite values") })
+        Err(DataError::NonFinite {
+            path: path.to_path_buf(),
+            what: format!("{name} contains NaN or infinite values"),
+        })
     }
 }
 
@@ -145,24 +152,48 @@ fn scan_images(root: &Path) -> Result<(PathBuf, Vec<PathBuf>), DataError> {
         .filter(|p| file_stem(p).starts_with("rect_"))
         .collect();
     if rect.is_empty() {
-        return Err(DataError::NotFound { path: dir, what: "DTU image folder (image/ or rect_* files)" });
+        return Err(DataError::NotFound {
+            path: dir,
+            what: "DTU image folder (image/ or rect_* files)",
+        });
     }
-    let lit: Vec<PathBuf> = rect.iter().filter(|p| file_stem(p).contains("_3_r5000")).cloned().collect();
+    let lit: Vec<PathBuf> = rect
+        .iter()
+        .filter(|p| file_stem(p).contains("_3_r5000"))
+        .cloned()
+        .collect();
     Ok((root.to_path_buf(), if lit.is_empty() { rect } else { lit }))
 }
 
 /// Number of `world_mat_i` arrays (ids `0..n` must all be present).
 fn camera_count(npz: &Npz) -> usize {
-    npz.names().filter(|n| n.strip_prefix("world_mat_").is_some_and(|i| i.parse::<usize>().is_ok())).count()
+    npz.names()
+        .filter(|n| {
+            n.strip_prefix("world_mat_")
+                .is_some_and(|i| i.parse::<usize>().is_ok())
+        })
+        .count()
 }
 
-pub(super) fn load(root: &Path, format: SceneFormat, opts: &LoadOptions) -> Result<Scene, DataError> {
-    let npz_name = if format == SceneFormat::DtuIdr { "cameras_sphere.npz" } else { "cameras.npz" };
+pub(super) fn load(
+    root: &Path,
+    format: SceneFormat,
+    opts: &LoadOptions,
+) -> Result<Scene, DataError> {
+    let npz_name = if format == SceneFormat::DtuIdr {
+        "cameras_sphere.npz"
+    } else {
+        "cameras.npz"
+    };
     let npz = Npz::read(&root.join(npz_name))?;
     let (image_dir, images) = scan_images(root)?;
     let n = camera_count(&npz);
     if images.len() != n {
-        return Err(DataError::CountMismatch { path: image_dir, images: images.len(), cameras: n });
+        return Err(DataError::CountMismatch {
+            path: image_dir,
+            images: images.len(),
+            cameras: n,
+        });
     }
     let mask_dir = root.join("mask");
     let masks = if opts.load_images && mask_dir.is_dir() {
@@ -170,7 +201,10 @@ pub(super) fn load(root: &Path, format: SceneFormat, opts: &LoadOptions) -> Resu
         if masks.len() != n {
             return Err(DataError::invalid(
                 &mask_dir,
-                format!("{} masks for {n} images; provide one mask per image (matched in name order) or remove the folder", masks.len()),
+                format!(
+                    "{} masks for {n} images; provide one mask per image (matched in name order) or remove the folder",
+                    masks.len()
+                ),
             ));
         }
         Some(masks)
@@ -206,7 +240,10 @@ pub(super) fn load(root: &Path, format: SceneFormat, opts: &LoadOptions) -> Resu
             c2w,
         };
         if !camera.is_finite() {
-            return Err(DataError::NonFinite { path: npz.path().to_path_buf(), what: format!("camera {i}") });
+            return Err(DataError::NonFinite {
+                path: npz.path().to_path_buf(),
+                what: format!("camera {i}"),
+            });
         }
         let mask = match &masks {
             Some(masks) => Some(read_view_mask(&masks[i], path, (w, h))?),
@@ -243,7 +280,11 @@ pub(super) fn load(root: &Path, format: SceneFormat, opts: &LoadOptions) -> Resu
 
 /// Near/far that enclose the unit sphere from every camera centre.
 fn unit_sphere_near_far(centers: impl Iterator<Item = Vec3>) -> (f32, f32) {
-    let (lo, hi) = centers.map(Vec3::length).fold((f32::INFINITY, 0.0f32), |(lo, hi), d| (lo.min(d), hi.max(d)));
+    let (lo, hi) = centers
+        .map(Vec3::length)
+        .fold((f32::INFINITY, 0.0f32), |(lo, hi), d| {
+            (lo.min(d), hi.max(d))
+        });
     ((lo - 1.0).max(0.1 * lo), hi + 1.0)
 }
 
@@ -282,7 +323,11 @@ mod tests {
         // A point projected by P (OpenCV) and by our camera (OpenGL) lands on the same pixel.
         let r = DMat3::from_euler(glam::EulerRot::XYZ, -0.2, 0.5, 0.1);
         let center = DVec3::new(0.3, 0.2, -2.8);
-        let k = DMat3::from_cols(DVec3::new(300.0, 0.0, 0.0), DVec3::new(0.0, 310.0, 0.0), DVec3::new(200.0, 150.0, 1.0));
+        let k = DMat3::from_cols(
+            DVec3::new(300.0, 0.0, 0.0),
+            DVec3::new(0.0, 310.0, 0.0),
+            DVec3::new(200.0, 150.0, 1.0),
+        );
         let (kr, kt) = (k * r, k * -(r * center));
         let p = [0, 1, 2].map(|i| {
             let row = kr.row(i);
@@ -297,12 +342,140 @@ mod tests {
         }
         let d = decompose_projection(p).unwrap();
         let rt = d.r.transpose();
-        let c2w = DMat4::from_cols(rt.x_axis.extend(0.0), (-rt.y_axis).extend(0.0), (-rt.z_axis).extend(0.0), d.center.extend(1.0));
-        let cam = Camera { width: 400, height: 300, fx: 300.0, fy: 310.0, cx: 200.0, cy: 150.0, c2w: c2w.as_mat4() };
+        let c2w = DMat4::from_cols(
+            rt.x_axis.extend(0.0),
+            (-rt.y_axis).extend(0.0),
+            (-rt.z_axis).extend(0.0),
+            d.center.extend(1.0),
+        );
+        let cam = Camera {
+            width: 400,
+            height: 300,
+            fx: 300.0,
+            fy: 310.0,
+            cx: 200.0,
+            cy: 150.0,
+            c2w: c2w.as_mat4(),
+        };
         let x = DVec3::new(0.1, -0.3, 0.2);
         let q = npz_like * x.extend(1.0);
         let (px, z) = cam.project(x.as_vec3()).unwrap();
         assert!((px.x as f64 - q.x / q.z).abs() < 1e-3 && (px.y as f64 - q.y / q.z).abs() < 1e-3);
         assert!((z as f64 - q.z).abs() < 1e-4);
+    }
+
+    /// A synthetic pixelNeRF-layout scan: 30 cameras on an arc looking at the origin,
+    /// full-resolution intrinsics for 32x24 images shipped at 8x6, and a world frame
+    /// that `scale_mat` maps back to the normalised one.
+    #[test]
+    fn loads_a_synthetic_scan() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        std::fs::create_dir_all(root.join("image")).unwrap();
+        std::fs::create_dir_all(root.join("mask")).unwrap();
+        let k = DMat4::from_cols(
+            DVec4::new(40.0, 0.0, 0.0, 0.0),
+            DVec4::new(0.0, 41.0, 0.0, 0.0),
+            DVec4::new(16.4, 11.6, 1.0, 0.0),
+            DVec4::W,
+        );
+        let scale = DMat4::from_cols(
+            DVec4::new(2.0, 0.0, 0.0, 0.0),
+            DVec4::new(0.0, 2.0, 0.0, 0.0),
+            DVec4::new(0.0, 0.0, 2.0, 0.0),
+            DVec4::new(0.5, -0.3, 1.0, 1.0),
+        );
+        let n = 30;
+        let centers: Vec<DVec3> = (0..n)
+            .map(|i| {
+                let a = i as f64 * std::f64::consts::PI / n as f64;
+                DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin())
+            })
+            .collect();
+        let mut mats = Vec::new();
+        for (i, c) in centers.iter().enumerate() {
+            let f = (-*c).normalize();
+            let r = f.cross(DVec3::Y).normalize();
+            let d = f.cross(r);
+            let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W)
+                .transpose()
+                * DMat4::from_translation(-*c);
+            let world = k * w2c * scale.inverse();
+            let rows = |m: DMat4| {
+                (0..4)
+                    .flat_map(|r| m.row(r).to_array())
+                    .collect::<Vec<f64>>()
+            };
+            mats.push((format!("world_mat_{i}"), rows(world)));
+            mats.push((format!("scale_mat_{i}"), rows(scale)));
+            image::RgbImage::new(8, 6)
+                .save(root.join(format!("image/{i:06}.png")))
+                .unwrap();
+            image::GrayImage::from_pixel(8, 6, image::Luma([255]))
+                .save(root.join(format!("mask/{i:03}.png")))
+                .unwrap();
+        }
+        let arrays: Vec<(&str, &[usize], &[f64])> = mats
+            .iter()
+            .map(|(name, data)| (name.as_str(), &[4usize, 4][..], data.as_slice()))
+            .collect();
+        crate::data::npy::write_npz_f64(&root.join("cameras.npz"), &arrays).unwrap();
+
+        let opts = LoadOptions {
+            views: Some(3),
+            ..Default::default()
+        };
+        let scene = Scene::load(root, &opts).unwrap();
+        assert_eq!(scene.format, SceneFormat::DtuPixelNerf);
+        assert_eq!((scene.near, scene.far), PIXELNERF_NEAR_FAR);
+        assert_eq!(scene.split.train, vec![25, 22, 28]);
+        // Ids below 30: 6 of the 9 train ids and 11 of the 15 excluded ones.
+        assert_eq!(scene.split.test.len(), 30 - 6 - 11);
+        for (v, c) in scene.views.iter().zip(&centers) {
+            let cam = &v.camera;
+            assert!((cam.fx - 10.0).abs() < 1e-4 && (cam.fy - 10.25).abs() < 1e-4);
+            assert!((cam.cx - 4.1).abs() < 1e-4 && (cam.cy - 2.9).abs() < 1e-4);
+            assert!(
+                cam.origin().abs_diff_eq(c.as_vec3(), 1e-5),
+                "{} vs {c}",
+                cam.origin()
+            );
+            // Each camera looks at the origin: it projects to the principal point.
+            let (p, z) = cam.project(Vec3::ZERO).unwrap();
+            assert!(
+                (p - glam::Vec2::new(4.1, 2.9)).length() < 1e-4
+                    && (z as f64 - c.length()).abs() < 1e-4
+            );
+            // World up (+y) appears up in the image (smaller pixel y).
+            let (up, _) = cam.project(Vec3::Y * 0.1).unwrap();
+            assert!(up.y < p.y);
+            assert_eq!(v.mask.as_ref().map(Vec::len), Some(48));
+        }
+
+        // A missing camera for an existing image.
+        image::RgbImage::new(8, 6)
+            .save(root.join("image/000030.png"))
+            .unwrap();
+        let msg = Scene::load(root, &opts).unwrap_err().to_string();
+        assert!(
+            msg.contains("31 images for 30 cameras") && msg.contains("image"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn rect_files_prefer_lighting_3() {
+        let dir = tempfile::tempdir().unwrap();
+        for view in 1..=2 {
+            for light in 0..7 {
+                image::RgbImage::new(4, 3)
+                    .save(dir.path().join(format!("rect_{view:03}_{light}_r5000.png")))
+                    .unwrap();
+            }
+        }
+        let (folder, files) = scan_images(dir.path()).unwrap();
+        assert_eq!(folder, dir.path());
+        let names: Vec<String> = files.iter().map(|p| file_stem(p)).collect();
+        assert_eq!(names, ["rect_001_3_r5000", "rect_002_3_r5000"]);
     }
 }

@@ -59,10 +59,17 @@ pub enum DataError {
          ground-truth map of a scene must have the same size (resize or regenerate it)",
         got.0, got.1, expected.0, expected.1
     )]
-    SizeMismatch { path: PathBuf, reference: PathBuf, got: (u32, u32), expected: (u32, u32) },
+    SizeMismatch {
+        path: PathBuf,
+        reference: PathBuf,
+        got: (u32, u32),
+        expected: (u32, u32),
+    },
 
     /// A camera pose or intrinsic contains NaN or infinity (or is degenerate).
-    #[error("non-finite or degenerate camera in {path}: {what} (fix or regenerate the camera file)")]
+    #[error(
+        "non-finite or degenerate camera in {path}: {what} (fix or regenerate the camera file)"
+    )]
     NonFinite { path: PathBuf, what: String },
 
     /// A camera refers to an image file that does not exist.
@@ -74,7 +81,11 @@ pub enum DataError {
         "{path}: found {images} images for {cameras} cameras; every camera needs exactly one \
          image (check the image folder and the camera file)"
     )]
-    CountMismatch { path: PathBuf, images: usize, cameras: usize },
+    CountMismatch {
+        path: PathBuf,
+        images: usize,
+        cameras: usize,
+    },
 
     /// Anything else that makes the data unusable; `message` says what and what to do.
     #[error("invalid scene data in {path}: {message}")]
@@ -84,11 +95,17 @@ pub enum DataError {
 impl DataError {
     /// Wraps an I/O error with the path it concerns.
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        DataError::Io { path: path.into(), source }
+        DataError::Io {
+            path: path.into(),
+            source,
+        }
     }
 
     /// Shorthand for [`DataError::Invalid`].
     pub(crate) fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        DataError::Invalid { path: path.into(), message: message.into() }
+        DataError::Invalid {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 }

@@ -33,7 +33,11 @@ pub struct ImageInfo {
 impl ImageRgb {
     /// A black image.
     pub fn new(width: u32, height: u32) -> ImageRgb {
-        ImageRgb { width, height, data: vec![0.0; 3 * width as usize * height as usize] }
+        ImageRgb {
+            width,
+            height,
+            data: vec![0.0; 3 * width as usize * height as usize],
+        }
     }
 
     /// `true` when the image holds no pixels (views loaded without images).
@@ -42,7 +46,12 @@ impl ImageRgb {
     }
 
     fn index(&self, x: u32, y: u32) -> usize {
-        assert!(x < self.width && y < self.height, "pixel ({x}, {y}) outside {}x{}", self.width, self.height);
+        assert!(
+            x < self.width && y < self.height,
+            "pixel ({x}, {y}) outside {}x{}",
+            self.width,
+            self.height
+        );
         3 * (y as usize * self.width as usize + x as usize)
     }
 
@@ -60,7 +69,10 @@ impl ImageRgb {
 
     /// Loads a PNG or JPEG. RGBA images are composited over `background`; the alpha
     /// channel is returned too (`None` when the file has none).
-    pub fn load(path: impl AsRef<Path>, background: [f32; 3]) -> Result<(ImageRgb, Option<Vec<f32>>), DataError> {
+    pub fn load(
+        path: impl AsRef<Path>,
+        background: [f32; 3],
+    ) -> Result<(ImageRgb, Option<Vec<f32>>), DataError> {
         let path = path.as_ref();
         let img = decode(path)?;
         let has_alpha = img.color().has_alpha();
@@ -77,22 +89,39 @@ impl ImageRgb {
                 alpha.push(a);
             }
         }
-        Ok((ImageRgb { width, height, data }, alpha))
+        Ok((
+            ImageRgb {
+                width,
+                height,
+                data,
+            },
+            alpha,
+        ))
     }
 
     /// Writes an 8-bit RGB PNG (values clamped to `[0, 1]` and rounded).
     pub fn save_png(&self, path: impl AsRef<Path>) -> Result<(), DataError> {
         let path = path.as_ref();
-        let bytes: Vec<u8> = self.data.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect();
+        let bytes: Vec<u8> = self
+            .data
+            .iter()
+            .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
         let buf = image::RgbImage::from_raw(self.width, self.height, bytes)
             .ok_or_else(|| DataError::invalid(path, "image data length does not match its size"))?;
         buf.save_with_format(path, image::ImageFormat::Png)
-            .map_err(|source| DataError::Image { path: path.to_path_buf(), source })
+            .map_err(|source| DataError::Image {
+                path: path.to_path_buf(),
+                source,
+            })
     }
 }
 
 fn decode(path: &Path) -> Result<image::DynamicImage, DataError> {
-    reader(path)?.decode().map_err(|source| DataError::Image { path: path.to_path_buf(), source })
+    reader(path)?.decode().map_err(|source| DataError::Image {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 fn reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>, DataError> {
@@ -106,9 +135,16 @@ pub fn image_info(path: impl AsRef<Path>) -> Result<ImageInfo, DataError> {
     let path = path.as_ref();
     let decoder = reader(path)?
         .into_decoder()
-        .map_err(|source| DataError::Image { path: path.to_path_buf(), source })?;
+        .map_err(|source| DataError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let (width, height) = decoder.dimensions();
-    Ok(ImageInfo { width, height, has_alpha: decoder.color_type().has_alpha() })
+    Ok(ImageInfo {
+        width,
+        height,
+        has_alpha: decoder.color_type().has_alpha(),
+    })
 }
 
 /// Loads a mask image (any colour type) as one value in `[0, 1]` per pixel: the mean
@@ -117,18 +153,31 @@ pub fn load_mask(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<f32>), DataErr
     let path = path.as_ref();
     let rgb = decode(path)?.into_rgb32f();
     let (w, h) = rgb.dimensions();
-    Ok((w, h, rgb.pixels().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect()))
+    Ok((
+        w,
+        h,
+        rgb.pixels().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect(),
+    ))
 }
 
 fn exr_error(path: &Path, message: impl std::fmt::Display) -> DataError {
-    DataError::Exr { path: path.to_path_buf(), message: message.to_string() }
+    DataError::Exr {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
 }
 
 /// Reads the named channels (first name found in each group of alternatives) of the
 /// first layer of an EXR file, as `f32`, row-major.
-fn read_exr_channels(path: &Path, wanted: &[&[&str]]) -> Result<(u32, u32, Vec<Vec<f32>>), DataError> {
+fn read_exr_channels(
+    path: &Path,
+    wanted: &[&[&str]],
+) -> Result<(u32, u32, Vec<Vec<f32>>), DataError> {
     if !path.is_file() {
-        return Err(DataError::NotFound { path: path.to_path_buf(), what: "EXR file" });
+        return Err(DataError::NotFound {
+            path: path.to_path_buf(),
+            what: "EXR file",
+        });
     }
     let image = exrp::read_first_flat_layer_from_file(path).map_err(|e| exr_error(path, e))?;
     let layer = &image.layer_data;
@@ -171,7 +220,12 @@ pub fn load_depth_exr(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<f32>), Da
 pub fn load_normal_exr(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<[f32; 3]>), DataError> {
     let path = path.as_ref();
     let (w, h, c) = read_exr_channels(path, &[&["R", "X"], &["G", "Y"], &["B", "Z"]])?;
-    let normals = c[0].iter().zip(&c[1]).zip(&c[2]).map(|((&x, &y), &z)| [x, y, z]).collect();
+    let normals = c[0]
+        .iter()
+        .zip(&c[1])
+        .zip(&c[2])
+        .map(|((&x, &y), &z)| [x, y, z])
+        .collect();
     Ok((w, h, normals))
 }
 
@@ -186,7 +240,12 @@ fn check_len(path: &Path, width: u32, height: u32, len: usize) -> Result<(), Dat
 }
 
 /// Writes a depth map as a single-channel (`Y`) `f32` EXR.
-pub fn save_depth_exr(path: impl AsRef<Path>, width: u32, height: u32, depth: &[f32]) -> Result<(), DataError> {
+pub fn save_depth_exr(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    depth: &[f32],
+) -> Result<(), DataError> {
     let path = path.as_ref();
     check_len(path, width, height, depth.len())?;
     let w = width as usize;
@@ -200,7 +259,12 @@ pub fn save_depth_exr(path: impl AsRef<Path>, width: u32, height: u32, depth: &[
 }
 
 /// Writes a normal map as an `f32` EXR with channels `R`, `G`, `B` = `x`, `y`, `z`.
-pub fn save_normal_exr(path: impl AsRef<Path>, width: u32, height: u32, normals: &[[f32; 3]]) -> Result<(), DataError> {
+pub fn save_normal_exr(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    normals: &[[f32; 3]],
+) -> Result<(), DataError> {
     let path = path.as_ref();
     check_len(path, width, height, normals.len())?;
     let w = width as usize;
@@ -217,7 +281,10 @@ pub fn save_normal_exr(path: impl AsRef<Path>, width: u32, height: u32, normals:
 /// Image files (`png`, `jpg`, `jpeg`, any case) directly inside `dir`, sorted by name.
 pub(crate) fn list_images(dir: &Path, what: &'static str) -> Result<Vec<PathBuf>, DataError> {
     if !dir.is_dir() {
-        return Err(DataError::NotFound { path: dir.to_path_buf(), what });
+        return Err(DataError::NotFound {
+            path: dir.to_path_buf(),
+            what,
+        });
     }
     let entries = std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))?;
     let mut files = Vec::new();
@@ -237,7 +304,9 @@ pub(crate) fn list_images(dir: &Path, what: &'static str) -> Result<Vec<PathBuf>
 
 /// The file stem of `path` as a string (the view name).
 pub(crate) fn file_stem(path: &Path) -> String {
-    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// Enforces the one-size-per-scene invariant: remembers the first file's size and
@@ -284,12 +353,20 @@ pub(crate) fn read_view_image(
 ) -> Result<ViewImage, DataError> {
     let info = image_info(path)?;
     guard.check(path, (info.width, info.height))?;
-    let (image, alpha) = if load_pixels { ImageRgb::load(path, background)? } else { (ImageRgb::default(), None) };
+    let (image, alpha) = if load_pixels {
+        ImageRgb::load(path, background)?
+    } else {
+        (ImageRgb::default(), None)
+    };
     Ok(ViewImage { image, alpha, info })
 }
 
 /// Loads a mask and checks that it matches the size of its image `image_path`.
-pub(crate) fn read_view_mask(path: &Path, image_path: &Path, size: (u32, u32)) -> Result<Vec<f32>, DataError> {
+pub(crate) fn read_view_mask(
+    path: &Path,
+    image_path: &Path,
+    size: (u32, u32),
+) -> Result<Vec<f32>, DataError> {
     let (w, h, mask) = load_mask(path)?;
     if (w, h) != size {
         return Err(DataError::SizeMismatch {
@@ -329,6 +406,13 @@ mod tests {
         let (back, alpha) = ImageRgb::load(&pp, [0.0; 3]).unwrap();
         assert!(alpha.is_none());
         assert_eq!(back.get(4, 2), [1.0, 128.0 / 255.0, 0.0]);
-        assert_eq!(image_info(&pp).unwrap(), ImageInfo { width: w, height: h, has_alpha: false });
+        assert_eq!(
+            image_info(&pp).unwrap(),
+            ImageInfo {
+                width: w,
+                height: h,
+                has_alpha: false
+            }
+        );
     }
 }

@@ -14,7 +14,9 @@
 //!    stored in the file (per axis); the principal point is the image centre.
 //!
 //! Rays are NDC rays ([`NdcParams`] with `near = 1.0`): the scene's `near`/`far` are
-//! `0`/`1` and its `aabb` is the NDC cube `[-1, 1]^3`. Images are the image files of
+//! `0`/`1` and its `aabb` is the NDC slab `[-1.5, 1.5]^2 x [-1, 1]`: wider than the
+//! NDC cube in x and y because cameras rotated off the mean axis (fern: up to ~9 deg)
+//! send border rays up to ~1.44 sideways before they reach z = 1. Images are the image files of
 //! `images_{factor}` (`images` for factor 1) sorted by name, one per pose in order.
 //! Split: [`llff_split`].
 
@@ -33,7 +35,11 @@ const NDC_NEAR: f32 = 1.0;
 
 /// The image folder for a downsampling factor.
 pub(crate) fn image_dir_name(factor: u32) -> String {
-    if factor <= 1 { "images".to_string() } else { format!("images_{factor}") }
+    if factor <= 1 {
+        "images".to_string()
+    } else {
+        format!("images_{factor}")
+    }
 }
 
 /// One pose from `poses_bounds.npy`, after the axis fix.
@@ -50,7 +56,12 @@ fn parse_row(row: &[f64]) -> RawPose {
     // [down, right, back] -> [right, up, back].
     let (x, y, z) = (col(1), -col(0), col(2));
     RawPose {
-        c2w: DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), col(3).extend(1.0)),
+        c2w: DMat4::from_cols(
+            x.extend(0.0),
+            y.extend(0.0),
+            z.extend(0.0),
+            col(3).extend(1.0),
+        ),
         hwf: [m(0, 4), m(1, 4), m(2, 4)],
         bounds: [row[15], row[16]],
     }
@@ -60,11 +71,20 @@ fn parse_row(row: &[f64]) -> RawPose {
 fn average_pose(poses: &[DMat4]) -> DMat4 {
     let n = poses.len() as f64;
     let center = poses.iter().map(|p| p.w_axis.truncate()).sum::<DVec3>() / n;
-    let z = poses.iter().map(|p| p.z_axis.truncate()).sum::<DVec3>().normalize();
+    let z = poses
+        .iter()
+        .map(|p| p.z_axis.truncate())
+        .sum::<DVec3>()
+        .normalize();
     let up = poses.iter().map(|p| p.y_axis.truncate()).sum::<DVec3>();
     let x = up.cross(z).normalize();
     let y = z.cross(x).normalize();
-    DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), center.extend(1.0))
+    DMat4::from_cols(
+        x.extend(0.0),
+        y.extend(0.0),
+        z.extend(0.0),
+        center.extend(1.0),
+    )
 }
 
 pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
@@ -73,7 +93,10 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     array.expect_shape(&poses_path, "poses_bounds", &[None, Some(17)])?;
     let n = array.shape[0];
     if n == 0 {
-        return Err(DataError::invalid(&poses_path, "the file holds no poses (shape (0, 17))"));
+        return Err(DataError::invalid(
+            &poses_path,
+            "the file holds no poses (shape (0, 17))",
+        ));
     }
     let mut raw = Vec::with_capacity(n);
     for i in 0..n {
@@ -81,27 +104,42 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         if let Some(j) = row.iter().position(|v| !v.is_finite()) {
             return Err(DataError::NonFinite {
                 path: poses_path.clone(),
-                what: format!("row {i} (pose of image {i}) has value {} at column {j}", row[j]),
+                what: format!(
+                    "row {i} (pose of image {i}) has value {} at column {j}",
+                    row[j]
+                ),
             });
         }
         let pose = parse_row(row);
         if pose.bounds[0] <= 0.0 || pose.hwf.iter().any(|&v| v <= 0.0) {
             return Err(DataError::invalid(
                 &poses_path,
-                format!("row {i} has a non-positive near bound, image size or focal length; regenerate it with LLFF's imgs2poses"),
+                format!(
+                    "row {i} has a non-positive near bound, image size or focal length; regenerate it with LLFF's imgs2poses"
+                ),
             ));
         }
         raw.push(pose);
     }
 
     let image_dir = root.join(image_dir_name(opts.llff_factor));
-    let files = list_images(&image_dir, "LLFF image folder (images_N for LoadOptions::llff_factor N)")?;
+    let files = list_images(
+        &image_dir,
+        "LLFF image folder (images_N for LoadOptions::llff_factor N)",
+    )?;
     if files.len() != n {
-        return Err(DataError::CountMismatch { path: image_dir, images: files.len(), cameras: n });
+        return Err(DataError::CountMismatch {
+            path: image_dir,
+            images: files.len(),
+            cameras: n,
+        });
     }
 
     // Rescale and recentre the poses.
-    let min_bound = raw.iter().map(|p| p.bounds[0]).fold(f64::INFINITY, f64::min);
+    let min_bound = raw
+        .iter()
+        .map(|p| p.bounds[0])
+        .fold(f64::INFINITY, f64::min);
     let sc = 1.0 / (min_bound * BD_FACTOR);
     let mut poses: Vec<DMat4> = raw
         .iter()
@@ -174,7 +212,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             height: c0.height as f32,
             near: NDC_NEAR,
         }),
-        aabb: [Vec3::splat(-1.0), Vec3::splat(1.0)],
+        aabb: [Vec3::new(-1.5, -1.5, -1.0), Vec3::new(1.5, 1.5, 1.0)],
         background: None,
     })
 }

@@ -51,14 +51,25 @@ impl NpyArray {
 
     /// Checks the shape against a pattern where `None` matches any length.
     /// The error names `path` and `what` (e.g. the array name inside an `.npz`).
-    pub fn expect_shape(&self, path: &Path, what: &str, pattern: &[Option<usize>]) -> Result<(), DataError> {
+    pub fn expect_shape(
+        &self,
+        path: &Path,
+        what: &str,
+        pattern: &[Option<usize>],
+    ) -> Result<(), DataError> {
         let ok = self.shape.len() == pattern.len()
-            && self.shape.iter().zip(pattern).all(|(&s, p)| p.is_none_or(|p| p == s));
+            && self
+                .shape
+                .iter()
+                .zip(pattern)
+                .all(|(&s, p)| p.is_none_or(|p| p == s));
         if ok {
             return Ok(());
         }
-        let expected: Vec<String> =
-            pattern.iter().map(|p| p.map_or_else(|| "N".to_string(), |p| p.to_string())).collect();
+        let expected: Vec<String> = pattern
+            .iter()
+            .map(|p| p.map_or_else(|| "N".to_string(), |p| p.to_string()))
+            .collect();
         Err(DataError::Npy {
             path: path.to_path_buf(),
             message: format!(
@@ -79,7 +90,14 @@ impl NpyArray {
 fn shape_string(shape: &[usize]) -> String {
     match shape {
         [n] => format!("({n},)"),
-        _ => format!("({})", shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ")),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(|s| s.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     }
 }
 
@@ -95,13 +113,21 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
             let b = bytes.get(8..12).ok_or("truncated .npy header")?;
             (u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, 12)
         }
-        v => return Err(format!("unsupported .npy format version {v} (1, 2 and 3 are supported)")),
+        v => {
+            return Err(format!(
+                "unsupported .npy format version {v} (1, 2 and 3 are supported)"
+            ));
+        }
     };
-    let header = bytes.get(header_start..header_start + header_len).ok_or("truncated .npy header")?;
+    let header = bytes
+        .get(header_start..header_start + header_len)
+        .ok_or("truncated .npy header")?;
     let header = std::str::from_utf8(header).map_err(|_| "the .npy header is not text")?;
     let (dtype, fortran, shape) = parse_header(header)?;
     if fortran {
-        return Err("Fortran-order arrays are not supported; save np.ascontiguousarray(a) instead".into());
+        return Err(
+            "Fortran-order arrays are not supported; save np.ascontiguousarray(a) instead".into(),
+        );
     }
     let count: usize = shape.iter().product();
     let body = &bytes[header_start + header_len..];
@@ -114,10 +140,22 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
         ));
     }
     let data = match dtype {
-        DType::F4 => body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
-        DType::I4 => body.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
-        DType::F8 => body.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("chunk of 8"))).collect(),
-        DType::I8 => body.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().expect("chunk of 8")) as f64).collect(),
+        DType::F4 => body
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+            .collect(),
+        DType::I4 => body
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+            .collect(),
+        DType::F8 => body
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("chunk of 8")))
+            .collect(),
+        DType::I8 => body
+            .chunks_exact(8)
+            .map(|c| i64::from_le_bytes(c.try_into().expect("chunk of 8")) as f64)
+            .collect(),
     };
     Ok(NpyArray { shape, dtype, data })
 }
@@ -189,13 +227,24 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Result<&'a str, String> {
 /// Reads a `.npy` file.
 pub fn read_npy(path: &Path) -> Result<NpyArray, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
-    parse_npy(&bytes).map_err(|message| DataError::Npy { path: path.to_path_buf(), message })
+    parse_npy(&bytes).map_err(|message| DataError::Npy {
+        path: path.to_path_buf(),
+        message,
+    })
 }
 
 /// Serialises a C-order little-endian `f64` array as `.npy` (format version 1).
+/// Panics if `data.len()` is not the product of `shape` (a caller bug).
 pub fn npy_bytes_f64(shape: &[usize], data: &[f64]) -> Vec<u8> {
-    assert_eq!(shape.iter().product::<usize>(), data.len(), "npy_bytes_f64: shape does not match data");
-    let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {}, }}", shape_string(shape));
+    assert_eq!(
+        shape.iter().product::<usize>(),
+        data.len(),
+        "npy_bytes_f64: shape does not match data"
+    );
+    let mut header = format!(
+        "{{'descr': '<f8', 'fortran_order': False, 'shape': {}, }}",
+        shape_string(shape)
+    );
     // Pad so that magic + version + length + header (with its newline) is a multiple of 64.
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
@@ -217,6 +266,26 @@ pub fn write_npy_f64(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), D
     std::fs::write(path, npy_bytes_f64(shape, data)).map_err(|e| DataError::io(path, e))
 }
 
+/// Writes `f64` arrays as an uncompressed `.npz` archive (what `np.savez` writes).
+pub fn write_npz_f64(path: &Path, arrays: &[(&str, &[usize], &[f64])]) -> Result<(), DataError> {
+    let bad = |e: zip::result::ZipError| DataError::Npy {
+        path: path.to_path_buf(),
+        message: format!("cannot write archive: {e}"),
+    };
+    let file = std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
+    let mut zip = zip::ZipWriter::new(std::io::BufWriter::new(file));
+    let options =
+        zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Stored);
+    for (name, shape, data) in arrays {
+        zip.start_file(format!("{name}.npy"), options)
+            .map_err(bad)?;
+        std::io::Write::write_all(&mut zip, &npy_bytes_f64(shape, data))
+            .map_err(|e| DataError::io(path, e))?;
+    }
+    let mut inner = zip.finish().map_err(bad)?;
+    std::io::Write::flush(&mut inner).map_err(|e| DataError::io(path, e))
+}
+
 /// All arrays of a `.npz` archive, by name (without the `.npy` suffix).
 #[derive(Clone, Debug)]
 pub struct Npz {
@@ -227,21 +296,33 @@ pub struct Npz {
 impl Npz {
     /// Reads every array of the archive at `path`.
     pub fn read(path: &Path) -> Result<Npz, DataError> {
-        let bad = |message: String| DataError::Npy { path: path.to_path_buf(), message };
+        let bad = |message: String| DataError::Npy {
+            path: path.to_path_buf(),
+            message,
+        };
         let file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
         let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file))
             .map_err(|e| bad(format!("not a valid .npz (zip) archive: {e}")))?;
         let mut arrays = BTreeMap::new();
         for i in 0..archive.len() {
-            let mut entry = archive.by_index(i).map_err(|e| bad(format!("cannot read archive entry {i}: {e}")))?;
+            let mut entry = archive
+                .by_index(i)
+                .map_err(|e| bad(format!("cannot read archive entry {i}: {e}")))?;
             let name = entry.name().to_string();
-            let Some(key) = name.strip_suffix(".npy") else { continue };
+            let Some(key) = name.strip_suffix(".npy") else {
+                continue;
+            };
             let mut bytes = Vec::with_capacity(entry.size() as usize);
-            entry.read_to_end(&mut bytes).map_err(|e| bad(format!("cannot read {name}: {e}")))?;
+            entry
+                .read_to_end(&mut bytes)
+                .map_err(|e| bad(format!("cannot read {name}: {e}")))?;
             let array = parse_npy(&bytes).map_err(|m| bad(format!("{name}: {m}")))?;
             arrays.insert(key.to_string(), array);
         }
-        Ok(Npz { path: path.to_path_buf(), arrays })
+        Ok(Npz {
+            path: path.to_path_buf(),
+            arrays,
+        })
     }
 
     /// The archive's path.
@@ -258,7 +339,10 @@ impl Npz {
     pub fn require(&self, name: &str) -> Result<&NpyArray, DataError> {
         self.get(name).ok_or_else(|| DataError::Npy {
             path: self.path.clone(),
-            message: format!("the archive has no array '{name}' (it holds {} arrays)", self.arrays.len()),
+            message: format!(
+                "the archive has no array '{name}' (it holds {} arrays)",
+                self.arrays.len()
+            ),
         })
     }
 
@@ -289,8 +373,15 @@ mod tests {
 
     #[test]
     fn reads_hand_built_v1_f4() {
-        let body: Vec<u8> = [1.5f32, -2.0, 3.25, 4.0, 5.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
-        let bytes = hand_built(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", &body);
+        let body: Vec<u8> = [1.5f32, -2.0, 3.25, 4.0, 5.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let bytes = hand_built(
+            1,
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }",
+            &body,
+        );
         let a = parse_npy(&bytes).unwrap();
         assert_eq!(a.shape, vec![2, 3]);
         assert_eq!(a.dtype, DType::F4);
@@ -301,10 +392,23 @@ mod tests {
     #[test]
     fn reads_v2_v3_and_integers() {
         let body: Vec<u8> = [7i64, -8].iter().flat_map(|v| v.to_le_bytes()).collect();
-        let a = parse_npy(&hand_built(2, "{'descr': '<i8', 'fortran_order': False, 'shape': (2,), }", &body)).unwrap();
-        assert_eq!((a.shape.clone(), a.data.clone()), (vec![2], vec![7.0, -8.0]));
+        let a = parse_npy(&hand_built(
+            2,
+            "{'descr': '<i8', 'fortran_order': False, 'shape': (2,), }",
+            &body,
+        ))
+        .unwrap();
+        assert_eq!(
+            (a.shape.clone(), a.data.clone()),
+            (vec![2], vec![7.0, -8.0])
+        );
         let body: Vec<u8> = [3i32].iter().flat_map(|v| v.to_le_bytes()).collect();
-        let a = parse_npy(&hand_built(3, "{'descr': '<i4', 'fortran_order': False, 'shape': (), }", &body)).unwrap();
+        let a = parse_npy(&hand_built(
+            3,
+            "{'descr': '<i4', 'fortran_order': False, 'shape': (), }",
+            &body,
+        ))
+        .unwrap();
         assert_eq!((a.shape.clone(), a.data.clone()), (vec![], vec![3.0]));
     }
 
@@ -312,30 +416,89 @@ mod tests {
     fn writer_round_trips() {
         let data: Vec<f64> = (0..34).map(|i| i as f64 * 0.5 - 3.0).collect();
         let bytes = npy_bytes_f64(&[2, 17], &data);
-        assert_eq!(bytes.len() % 64, (34 * 8) % 64, "header is padded to 64 bytes");
+        assert_eq!(
+            bytes.len() % 64,
+            (34 * 8) % 64,
+            "header is padded to 64 bytes"
+        );
         let a = parse_npy(&bytes).unwrap();
-        assert_eq!((a.shape, a.dtype, a.data), (vec![2, 17], DType::F8, data));
+        assert_eq!(
+            (a.shape, a.dtype, a.data),
+            (vec![2, 17], DType::F8, data.clone())
+        );
+
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.npz");
+        write_npz_f64(
+            &path,
+            &[
+                ("poses", &[2, 17], &data),
+                ("eye", &[2, 2], &[1.0, 0.0, 0.0, 1.0]),
+            ],
+        )
+        .unwrap();
+        let npz = Npz::read(&path).unwrap();
+        assert_eq!(npz.names().collect::<Vec<_>>(), ["eye", "poses"]);
+        assert_eq!(npz.require("poses").unwrap().data, data);
+        let msg = npz.require("world_mat_0").unwrap_err().to_string();
+        assert!(
+            msg.contains("a.npz") && msg.contains("world_mat_0"),
+            "{msg}"
+        );
     }
 
     #[test]
     fn rejects_unsupported_layouts() {
         let body = [0u8; 8];
-        let err = parse_npy(&hand_built(1, "{'descr': '<f8', 'fortran_order': True, 'shape': (1,), }", &body));
+        let err = parse_npy(&hand_built(
+            1,
+            "{'descr': '<f8', 'fortran_order': True, 'shape': (1,), }",
+            &body,
+        ));
         assert!(err.unwrap_err().contains("Fortran"));
-        let err = parse_npy(&hand_built(1, "{'descr': '>f8', 'fortran_order': False, 'shape': (1,), }", &body));
+        let err = parse_npy(&hand_built(
+            1,
+            "{'descr': '>f8', 'fortran_order': False, 'shape': (1,), }",
+            &body,
+        ));
         assert!(err.unwrap_err().contains("big-endian"));
-        let err = parse_npy(&hand_built(1, "{'descr': '<U2', 'fortran_order': False, 'shape': (1,), }", &body));
+        let err = parse_npy(&hand_built(
+            1,
+            "{'descr': '<U2', 'fortran_order': False, 'shape': (1,), }",
+            &body,
+        ));
         assert!(err.unwrap_err().contains("not supported"));
-        let err = parse_npy(&hand_built(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2,), }", &body));
+        let err = parse_npy(&hand_built(
+            1,
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (2,), }",
+            &body,
+        ));
         assert!(err.unwrap_err().contains("truncated"));
-        assert!(parse_npy(b"PK\x03\x04 not npy").unwrap_err().contains("magic"));
+        assert!(
+            parse_npy(b"PK\x03\x04 not npy")
+                .unwrap_err()
+                .contains("magic")
+        );
     }
 
     #[test]
     fn shape_check_names_path() {
-        let a = NpyArray { shape: vec![20, 15], dtype: DType::F8, data: vec![0.0; 300] };
-        assert!(a.expect_shape(Path::new("x.npy"), "poses", &[None, Some(15)]).is_ok());
-        let msg = a.expect_shape(Path::new("x.npy"), "poses", &[None, Some(17)]).unwrap_err().to_string();
-        assert!(msg.contains("x.npy") && msg.contains("(20, 15)") && msg.contains("(N, 17)"), "{msg}");
+        let a = NpyArray {
+            shape: vec![20, 15],
+            dtype: DType::F8,
+            data: vec![0.0; 300],
+        };
+        assert!(
+            a.expect_shape(Path::new("x.npy"), "poses", &[None, Some(15)])
+                .is_ok()
+        );
+        let msg = a
+            .expect_shape(Path::new("x.npy"), "poses", &[None, Some(17)])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("x.npy") && msg.contains("(20, 15)") && msg.contains("(N, 17)"),
+            "{msg}"
+        );
     }
 }

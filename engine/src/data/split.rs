@@ -38,7 +38,13 @@ pub fn linspace_indices(n: usize, k: usize) -> Vec<usize> {
     }
     let step = (n - 1) as f64 / (k - 1) as f64;
     (0..k)
-        .map(|i| if i == k - 1 { n - 1 } else { (i as f64 * step).round_ties_even() as usize })
+        .map(|i| {
+            if i == k - 1 {
+                n - 1
+            } else {
+                (i as f64 * step).round_ties_even() as usize
+            }
+        })
         .collect()
 }
 
@@ -48,7 +54,9 @@ fn check_views(k: usize, available: usize) -> Result<(), String> {
         return Err("0 training views requested; ask for at least 1".into());
     }
     if k > available {
-        return Err(format!("{k} training views requested but only {available} are available; ask for at most {available}"));
+        return Err(format!(
+            "{k} training views requested but only {available} are available; ask for at most {available}"
+        ));
     }
     Ok(())
 }
@@ -62,7 +70,10 @@ pub fn llff_split(n: usize, views: Option<usize>) -> Result<Split, String> {
         None => rest,
         Some(k) => {
             check_views(k, rest.len())?;
-            linspace_indices(rest.len(), k).into_iter().map(|i| rest[i]).collect()
+            linspace_indices(rest.len(), k)
+                .into_iter()
+                .map(|i| rest[i])
+                .collect()
         }
     };
     Ok(Split { train, test })
@@ -74,9 +85,13 @@ pub fn dtu_split(n: usize, views: Option<usize>) -> Result<Split, String> {
     check_views(k, DTU_TRAIN_VIEWS.len())?;
     let train = DTU_TRAIN_VIEWS[..k].to_vec();
     if let Some(&id) = train.iter().find(|&&id| id >= n) {
-        return Err(format!("the DTU protocol trains on view {id} but the scan has only {n} views (ids 0..{n}); use fewer views"));
+        return Err(format!(
+            "the DTU protocol trains on view {id} but the scan has only {n} views (ids 0..{n}); use fewer views"
+        ));
     }
-    let test = (0..n).filter(|i| !DTU_TRAIN_VIEWS.contains(i) && !DTU_EXCLUDED_VIEWS.contains(i)).collect();
+    let test = (0..n)
+        .filter(|i| !DTU_TRAIN_VIEWS.contains(i) && !DTU_EXCLUDED_VIEWS.contains(i))
+        .collect();
     Ok(Split { train, test })
 }
 
@@ -124,7 +139,11 @@ mod tests {
         let s = dtu_split(49, Some(3)).unwrap();
         assert_eq!(s.train, vec![25, 22, 28]);
         assert_eq!(s.test.len(), 49 - 9 - 15);
-        assert!(s.test.iter().all(|i| !DTU_TRAIN_VIEWS.contains(i) && !DTU_EXCLUDED_VIEWS.contains(i)));
+        assert!(
+            s.test
+                .iter()
+                .all(|i| !DTU_TRAIN_VIEWS.contains(i) && !DTU_EXCLUDED_VIEWS.contains(i))
+        );
         assert_eq!(dtu_split(49, None).unwrap().train, DTU_TRAIN_VIEWS.to_vec());
         assert!(dtu_split(49, Some(10)).is_err());
         assert!(dtu_split(20, Some(1)).is_err());

@@ -8,7 +8,7 @@
 //! defined too (the very start of the warm-up).
 //!
 //! # Formulas
-//! * [`LrSchedule::Constant`]: `lr`.
+//! * [`LrSchedule::Constant`]: the constant `lr`.
 //! * [`LrSchedule::Ngp`] (Instant-NGP / nerfacc style): `lr * warmup(step) * decay(step)`
 //!   with the linear warm-up of torch's `LinearLR`,
 //!   `warmup(s) = f + (1 - f) * min(s, W) / W` (`f` = `warmup_start_factor`, `W` =

@@ -2,7 +2,7 @@
 //! expected depth and normal, and the exact backward pass back to the samples.
 //!
 //! Owns `kernels/render/composite.wgsl` (entry points `forward` and `backward`, bind
-//! layouts [`FORWARD`] and [`BACKWARD`]) and its CPU reference ([`reference`]). The
+//! layouts [`FORWARD`] and [`BACKWARD`]) and its CPU reference ([`reference`](mod@reference)). The
 //! renderer never knows which field produced the samples: it reads a
 //! [`SampleBatch`] (for `t`, `dt` and the per-ray ranges) and [`FieldOutputs`], writes
 //! [`RayOutput`]s, and on the way back turns `dL/d RayOutput` into [`FieldGrads`].

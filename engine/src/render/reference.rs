@@ -39,6 +39,7 @@ pub struct RefRay {
 
 impl RefRay {
     /// `<g, output>` with `g` laid out as a [`RayOutput`] (the test loss).
+    #[allow(clippy::needless_range_loop)]
     pub fn dot(&self, g: &RayOutput) -> f64 {
         let mut s = g.opacity as f64 * self.opacity + g.depth as f64 * self.depth;
         for k in 0..3 {
@@ -59,6 +60,7 @@ impl RefRay {
 }
 
 /// Composites one ray's samples (front to back) over `background`.
+#[allow(clippy::needless_range_loop)]
 pub fn composite(samples: &[RefSample], background: [f64; 3], threshold: f64) -> RefRay {
     let mut out = RefRay { weights: vec![0.0; samples.len()], ..Default::default() };
     let mut t_acc = 1.0f64;

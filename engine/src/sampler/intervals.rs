@@ -244,12 +244,18 @@ mod tests {
         let aabb = [Vec3::new(-1.5, -1.0, -0.5), Vec3::new(2.5, 1.0, 1.5)];
         for (res, brick, seed) in [(64u32, 4u32, 3u32), (48, 8, 11), (96, 4, 5)] {
             let cfg = SamplerConfig { resolution: res, brick_size: brick, ..Default::default() };
+            let t = std::time::Instant::now();
             let grid = random_grid(&gpu, &cfg, aabb, seed);
+            eprintln!("grid {:?}", t.elapsed());
             let bvh = grid.brick_bvh();
-            let rays = random_rays(3000, seed + 1, aabb);
+            let nr: u32 = std::env::var("NRAYS").map(|v| v.parse().unwrap()).unwrap_or(3000);
+            eprintln!("bricks {} nodes {} depth {}", grid.brick_bvh().bricks.len(), grid.brick_bvh().nodes.len(), grid.brick_bvh().depth);
+            let rays = random_rays(nr, seed + 1, aabb);
             let mut multi = 0;
             for cap in [16u32, 3] {
+                let t = std::time::Instant::now();
                 let got = ray_intervals(&gpu, &grid, &rays, cap).unwrap();
+                eprintln!("gpu {:?}", t.elapsed());
                 let want: Vec<_> = rays.iter().map(|r| cpu_bvh_intervals(bvh, r, cap as usize)).collect();
                 compare(&got, &want, &format!("res {res} brick {brick} cap {cap}"));
                 let brute: Vec<_> = rays.iter().map(|r| brute_force_intervals(bvh, r, cap as usize)).collect();

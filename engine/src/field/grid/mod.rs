@@ -67,8 +67,8 @@
 //!   Instant-NGP; combined per corner and feature, zeros skipped) and writes the layer
 //!   inputs/deltas to a scratch buffer (sample-major rows, 11 regions).
 //! * `outer`: weight gradients as sums of outer products over the chunk: one thread per
-//!   (4x4 weight tile, group of [`SAMPLES_PER_THREAD`] samples) accumulates in
-//!   registers and adds 16 partials with atomics: one atomic per weight per group.
+//!   (8x8 weight tile, group of [`SAMPLES_PER_THREAD`] samples) accumulates in
+//!   registers and adds its partials with atomics: one atomic per weight per group.
 //!   The normal path's two weight terms share `M = sum_s m_s (x) dg_s` (one more
 //!   `outer` with the ReLU mask), turned into `dW1 += diag(W2[0,:]) M` and
 //!   `dW2[0,j] += <W1[j,:], M[j,:]>` by `finalize` once per backward call.
@@ -108,6 +108,9 @@ pub const SH_TERMS: u32 = 16;
 pub const MAX_LEVELS: u32 = 32;
 /// Largest supported hidden width.
 pub const MAX_WIDTH: u32 = 64;
+/// Floats of the uniform weight block of the kernels (`MAX_WEIGHTS4` in
+/// `grid_lib.wgsl`): every matrix of the largest configuration.
+pub const MAX_WEIGHT_FLOATS: usize = 4 * 2880;
 /// Samples summed per thread by the weight-gradient kernel.
 pub const SAMPLES_PER_THREAD: u32 = 256;
 
@@ -350,6 +353,8 @@ struct OuterParams {
     x_stride: u32,
     out4: u32,
     in4: u32,
+    tiles_i: u32,
+    tiles_o: u32,
     n_out: u32,
     mask_d: u32,
     grad_off: u32,
@@ -358,7 +363,6 @@ struct OuterParams {
     chunk_len: u32,
     spt: u32,
     capacity: u32,
-    _pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -375,14 +379,14 @@ const FLAG_NORMALS: u32 = 1;
 use Binding::{ReadOnly as R, ReadWrite as RW, Uniform as U};
 
 const DENSITY: KernelSpec =
-    KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[U, R, R, R, RW] };
+    KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[U, R, U, R, RW] };
 const FORWARD: KernelSpec =
-    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[U, R, R, R, R, RW, RW, RW] };
+    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[U, R, U, R, R, RW, RW, RW] };
 const BACKWARD: KernelSpec = KernelSpec {
     file: "field/grid_backward.wgsl",
     entry: "backward",
     // params, table, weights, samples, count, d_density, d_rgb, d_normal, table_grad, scratch
-    bindings: &[U, R, R, R, R, R, R, R, RW, RW],
+    bindings: &[U, R, U, R, R, R, R, R, RW, RW],
 };
 const OUTER: KernelSpec = KernelSpec { file: "field/grid_outer.wgsl", entry: "outer", bindings: &[U, R, R, RW] };
 const FINALIZE: KernelSpec =
@@ -433,6 +437,9 @@ pub struct GridField {
     /// `M = sum_s m_s (x) dg_s` of the normal path, `[W][in_pad]`.
     normal_m: GpuBuffer<f32>,
     scratch: Option<Scratch>,
+    /// Uniform copy of the MLP weights read by the per-sample kernels, refreshed from
+    /// `mlp` at the start of every pass (uniform-buffer reads are broadcasts).
+    mlp_uniform: wgpu::Buffer,
 }
 
 /// Deterministic generator for the initialisation (SplitMix64).
@@ -493,6 +500,12 @@ impl GridField {
             normal_m: GpuBuffer::zeros(gpu, "grid normal M", w * layout.in_pad)?,
             layout,
             scratch: None,
+            mlp_uniform: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("grid mlp (uniform copy)"),
+                size: MAX_WEIGHT_FLOATS as u64 * 4,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
         })
     }
 
@@ -599,10 +612,11 @@ impl Field for GridField {
         assert!(points.len() >= count as usize && out.len() >= count as usize, "density: buffers shorter than count");
         let kernel = gpu.kernel(&DENSITY)?;
         let mut enc = gpu.encoder();
+        enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
         let params = enc.uniform(&self.params_uniform(count, 0, 0, 0));
         enc.dispatch_threads(
             &kernel,
-            &[&params, &self.table.buffer, &self.mlp.buffer, &points.buffer, &out.buffer],
+            &[&params, &self.table.buffer, &self.mlp_uniform, &points.buffer, &out.buffer],
             count,
         );
         enc.submit();
@@ -617,6 +631,7 @@ impl Field for GridField {
         );
         let kernel = gpu.kernel(&FORWARD)?;
         let mut enc = gpu.encoder();
+        enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
         let flags = if normals { FLAG_NORMALS } else { 0 };
         let params = enc.uniform(&self.params_uniform(cap, flags, 0, cap));
         enc.dispatch_threads(
@@ -624,7 +639,7 @@ impl Field for GridField {
             &[
                 &params,
                 &self.table.buffer,
-                &self.mlp.buffer,
+                &self.mlp_uniform,
                 &batch.samples.buffer,
                 &batch.count.buffer,
                 &out.density.buffer,
@@ -666,6 +681,7 @@ impl Field for GridField {
         }
         let flags = if normal_grads { FLAG_NORMALS } else { 0 };
         let mut enc = gpu.encoder();
+        enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
         if normal_grads {
             enc.clear(&self.normal_m.buffer);
         }
@@ -678,7 +694,7 @@ impl Field for GridField {
                 &[
                     &params,
                     &self.table.buffer,
-                    &self.mlp.buffer,
+                    &self.mlp_uniform,
                     &batch.samples.buffer,
                     &batch.count.buffer,
                     &grads.density.buffer,
@@ -698,6 +714,8 @@ impl Field for GridField {
                     x_stride: dims[xr],
                     out4,
                     in4: tin4,
+                    tiles_i: tin4.div_ceil(2),
+                    tiles_o: out4.div_ceil(2),
                     n_out,
                     mask_d: mask as u32,
                     grad_off: off as u32,
@@ -706,13 +724,12 @@ impl Field for GridField {
                     chunk_len: len,
                     spt: SAMPLES_PER_THREAD,
                     capacity: cap,
-                    _pad: [0; 2],
                 };
                 let pb = enc.uniform(&p);
                 enc.dispatch_threads(
                     &outer,
                     &[&pb, &batch.count.buffer, &scratch.buffer.buffer, &grad.buffer],
-                    out4 * tin4 * groups,
+                    out4.div_ceil(2) * tin4.div_ceil(2) * groups,
                 );
             }
             start += len;

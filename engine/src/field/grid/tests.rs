@@ -303,19 +303,20 @@ fn field_grid_gpu_encoding_and_mlps_match_reference() {
     for (i, smp) in s.samples.iter().enumerate() {
         let t = m.forward(pos(smp), dir(smp));
         // Encoding (GPU) == reference, padding zero.
-        assert_close(&format!("e[{i}]"), &scratch_vec(&e_rows, i), &t.enc.e, 1e-5, 1e-5);
+        // (f32 positions at the finest level: errors ~ resolution x 1e-7)
+        assert_close(&format!("e[{i}]"), &scratch_vec(&e_rows, i), &t.enc.e, 1e-4, 1e-4);
         // Density MLP on the GPU's own encoding == reference.
         let (a1, h) = m.density_mlp(&scratch_vec(&e_rows, i));
         assert_close(&format!("a1[{i}]"), &scratch_vec(&a1_rows, i), &a1, 1e-5, 1e-5);
         let xc = scratch_vec(&xc_rows, i);
         assert_close(&format!("h[{i}]"), &xc[..16], &h, 1e-5, 1e-5);
-        assert_close(&format!("xc[{i}]"), &xc, &t.xc, 1e-5, 1e-5);
+        assert_close(&format!("xc[{i}]"), &xc, &t.xc, 1e-4, 1e-4);
         // Colour MLP on the GPU's own input == reference.
         let (_, ac2, o) = m.color_mlp(&xc);
         assert_close(&format!("ac2[{i}]"), &scratch_vec(&ac2_rows, i), &ac2, 1e-5, 1e-5);
         let want_rgb = o.map(|v| 1.0 / (1.0 + (-v).exp()));
         assert_close(&format!("rgb[{i}]"), &to_f64(&rgb[i][..3]), &want_rgb, 1e-5, 1e-5);
-        assert_close(&format!("sigma[{i}]"), &[density[i] as f64], &[t.sigma], 1e-5, 1e-5);
+        assert_close(&format!("sigma[{i}]"), &[density[i] as f64], &[t.sigma], 1e-4, 1e-4);
         assert_eq!(t.enc.inside, t.sigma > 0.0);
     }
     // Samples past count are untouched.
@@ -644,17 +645,32 @@ fn field_grid_throughput() {
     let out = FieldOutputs::new(&gpu, n as u32).unwrap();
     let w = LossWeights::random(n, 2, 1.0, 1.0, 1.0);
     let grads = w.upload(&gpu, n as u32);
+    // Wall time, and the process's CPU time (lavapipe runs in-process), which is
+    // steadier than wall time when other jobs share the cores.
+    let cpu_seconds = || -> f64 {
+        let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+        let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+        let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+        (ticks(11) + ticks(12)) / 100.0
+    };
     let time = |label: &str, f: &mut dyn FnMut()| {
         f();
         gpu.wait().unwrap();
         let reps = 3;
-        let t0 = std::time::Instant::now();
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
         for _ in 0..reps {
             f();
         }
         gpu.wait().unwrap();
         let dt = t0.elapsed().as_secs_f64() / reps as f64;
-        eprintln!("{label}: {:.1} ms, {:.3} M samples/s", dt * 1e3, n as f64 / dt / 1e6);
+        let dc = (cpu_seconds() - c0) / reps as f64;
+        eprintln!(
+            "{label}: {:.1} ms wall, {:.3} M samples/s; {:.1} ms CPU, {:.3} M samples per CPU-second",
+            dt * 1e3,
+            n as f64 / dt / 1e6,
+            dc * 1e3,
+            n as f64 / dc.max(1e-9) / 1e6
+        );
     };
     eprintln!("adapter: {}", gpu.adapter());
     time("forward (no normals)", &mut || field.forward(&gpu, &batch, &out, false).unwrap());

@@ -1,0 +1,188 @@
+//! The run configuration: one typed struct per room, gathered in [`RunConfig`] and
+//! written as `config.json` in every run directory.
+//!
+//! Invariants: every field has a default (`#[serde(default)]`), so a config file
+//! names only what it changes; unknown keys are an error (typos do not pass
+//! silently); [`RunConfig::set`] applies `a.b.c=value` overrides through the same
+//! serde representation, so the CLI never redefines an option.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::field::GridConfig;
+use crate::optim::OptimConfig;
+use crate::render::RenderConfig;
+use crate::sampler::SamplerConfig;
+
+use super::TrainError;
+
+/// Which scene and how to load it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SceneConfig {
+    /// Scene directory (set by the CLI's positional argument).
+    pub path: PathBuf,
+    /// Training views `k` of the sparse-view split; `None`: all training views.
+    pub views: Option<usize>,
+    /// Background for RGBA images and for rendering; `None`: the scene's own
+    /// (white for Blender-format scenes), black for scenes without one.
+    pub background: Option<[f32; 3]>,
+}
+
+/// Coarse-to-fine annealing of the encoding levels (a remedy for hash grids
+/// overfitting few views): `start_levels` active at step 0, all active after `steps`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LevelAnneal {
+    pub start_levels: u32,
+    pub steps: u64,
+}
+
+impl Default for LevelAnneal {
+    fn default() -> Self {
+        Self { start_levels: 4, steps: 2000 }
+    }
+}
+
+/// The training loop's own settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Optimisation steps.
+    pub iters: u64,
+    /// Rays per step.
+    pub rays_per_batch: u32,
+    /// Sample capacity of a step's batch (rays past it are truncated).
+    pub max_samples: u32,
+    /// Seed of pixel selection, jitter and the occupancy grid's random cells.
+    pub seed: u64,
+    /// Write a checkpoint every this many steps (0: only at the end).
+    pub checkpoint_every: u64,
+    /// Coarse-to-fine level annealing; `None`: all levels from the start.
+    pub level_anneal: Option<LevelAnneal>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iters: 5000,
+            rays_per_batch: 4096,
+            max_samples: 1 << 18,
+            seed: 0,
+            checkpoint_every: 1000,
+            level_anneal: None,
+        }
+    }
+}
+
+/// Which field backend.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    #[default]
+    Grid,
+}
+
+/// Everything a run depends on.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunConfig {
+    pub backend: Backend,
+    pub scene: SceneConfig,
+    pub field: GridConfig,
+    pub sampler: SamplerConfig,
+    pub render: RenderConfig,
+    pub optim: OptimConfig,
+    pub train: TrainConfig,
+}
+
+impl RunConfig {
+    /// Reads a `.toml` or `.json` config file.
+    pub fn from_file(path: &Path) -> Result<RunConfig, TrainError> {
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
+        let is_toml = path.extension().is_some_and(|e| e == "toml");
+        let parsed = if is_toml {
+            toml::from_str(&text).map_err(|e| e.to_string())
+        } else {
+            serde_json::from_str(&text).map_err(|e| e.to_string())
+        };
+        parsed.map_err(|message| TrainError::Config { source_name: path.display().to_string(), message })
+    }
+
+    /// Applies an override `dotted.key=value`; `value` is parsed as JSON (numbers,
+    /// booleans, arrays, `null`), falling back to a plain string.
+    pub fn set(&mut self, assignment: &str) -> Result<(), TrainError> {
+        let bad = |message: String| TrainError::Config { source_name: format!("--set {assignment}"), message };
+        let (key, value) = assignment.split_once('=').ok_or_else(|| bad("expected key=value".into()))?;
+        let value: serde_json::Value =
+            serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
+        let mut root = serde_json::to_value(&*self).map_err(|e| bad(e.to_string()))?;
+        let mut node = &mut root;
+        let parts: Vec<&str> = key.split('.').collect();
+        for (i, part) in parts.iter().enumerate() {
+            let obj = node.as_object_mut().ok_or_else(|| bad(format!("{} is not a table", parts[..i].join("."))))?;
+            if i + 1 == parts.len() {
+                if !obj.contains_key(*part) {
+                    return Err(bad(format!("unknown key {key:?}")));
+                }
+                obj.insert(part.to_string(), value.clone());
+                break;
+            }
+            let next = obj.get_mut(*part).ok_or_else(|| bad(format!("unknown key {key:?}")))?;
+            if next.is_null() {
+                // An unset optional table: start it from an empty object so its
+                // defaults apply to the keys not given.
+                *next = serde_json::Value::Object(Default::default());
+            }
+            node = next;
+        }
+        *self = serde_json::from_value(root).map_err(|e| bad(e.to_string()))?;
+        Ok(())
+    }
+
+    /// The config as pretty JSON (what `config.json` holds).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("configs serialize")
+    }
+
+    /// A short stable hash of the config (benchmark rows, checkpoint metadata).
+    pub fn hash(&self) -> String {
+        // FNV-1a over the canonical JSON.
+        let mut h: u64 = 0xcbf29ce484222325;
+        for b in serde_json::to_string(self).expect("configs serialize").bytes() {
+            h = (h ^ b as u64).wrapping_mul(0x100000001b3);
+        }
+        format!("{h:016x}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overrides_reach_nested_keys_and_reject_typos() {
+        let mut c = RunConfig::default();
+        c.set("train.iters=123").unwrap();
+        c.set("field.n_levels=8").unwrap();
+        c.set("scene.views=3").unwrap();
+        assert_eq!((c.train.iters, c.field.n_levels, c.scene.views), (123, 8, Some(3)));
+        c.set("train.level_anneal.steps=50").unwrap();
+        assert_eq!(c.train.level_anneal.as_ref().unwrap().steps, 50);
+        assert!(c.set("train.itres=1").is_err());
+        assert!(c.set("train.iters=-1").is_err());
+        assert!(c.set("noequals").is_err());
+    }
+
+    #[test]
+    fn json_round_trip_and_partial_files() {
+        let c = RunConfig::default();
+        let back: RunConfig = serde_json::from_str(&c.to_json()).unwrap();
+        assert_eq!(back, c);
+        let partial: RunConfig = toml::from_str("[train]\niters = 7\n").unwrap();
+        assert_eq!(partial.train.iters, 7);
+        assert_eq!(partial.field, GridConfig::default());
+        assert!(toml::from_str::<RunConfig>("[train]\nbogus = 1\n").is_err());
+    }
+}

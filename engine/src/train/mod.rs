@@ -1,0 +1,282 @@
+//! The train room: the optimisation loop that ties the rooms together, checkpoints,
+//! the run configuration, and rendering with a trained model.
+//!
+//! One step ([`Trainer::step`]):
+//! ```text
+//! occupancy grid update (every 16 steps: field densities at grid query points)
+//! random training pixels -> rays (host) -> sampler (occupancy grid + BVH) -> samples
+//! field forward -> composite -> photometric loss -> composite backward
+//! zero grads -> field backward -> grad norm / NaN check / clip -> Adam (GPU)
+//! ```
+//! The host reads back one small set of numbers per step (the batch's squared errors,
+//! the gradient statistics and the sample count) for logging and the NaN guard.
+//!
+//! Invariants:
+//! * A step whose loss or gradients are not finite changes no parameter (Adam skips
+//!   non-finite gradients on the GPU) and is reported as [`TrainError::NonFinite`];
+//!   the caller stops and keeps the last good checkpoint.
+//! * Runs are deterministic given the config (seeded pixel choice, jitter, grid
+//!   cells), up to the order of float atomic adds on the GPU.
+//! * Checkpoints hold everything needed to resume: parameters, Adam state, step and
+//!   config; the occupancy grid is rebuilt from the field on load.
+
+pub mod checkpoint;
+pub mod config;
+pub mod model;
+pub mod rays;
+
+use std::path::{Path, PathBuf};
+
+use crate::data::{DataError, Scene};
+use crate::field::FieldError;
+use crate::gpu::{Gpu, GpuBuffer, GpuError};
+use crate::loss::{Photometric, photometric::psnr};
+use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
+use crate::render::RenderError;
+use crate::sampler::SamplerError;
+use crate::samples::{FieldGrads, RayOutput};
+
+pub use checkpoint::Checkpoint;
+pub use config::{Backend, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
+pub use model::{Model, RenderedView};
+
+use model::BatchBuffers;
+
+/// Errors of training and rendering runs.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Field(#[from] FieldError),
+    #[error(transparent)]
+    Sampler(#[from] SamplerError),
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    #[error(transparent)]
+    Optim(#[from] OptimError),
+    #[error("{path}: {message}")]
+    Io { path: PathBuf, message: String },
+    #[error("configuration from {source_name}: {message}")]
+    Config { source_name: String, message: String },
+    #[error("checkpoint {path}: {message}")]
+    Checkpoint { path: PathBuf, message: String },
+    #[error(
+        "training diverged at step {step}: {what} is not finite; no parameter was updated by this step. \
+         Lower the learning rate (optim.schedule) or enable gradient clipping (optim.clip.max_norm)"
+    )]
+    NonFinite { step: u64, what: String },
+}
+
+impl TrainError {
+    pub fn io(path: &Path, e: std::io::Error) -> TrainError {
+        TrainError::Io { path: path.to_path_buf(), message: e.to_string() }
+    }
+}
+
+/// What one step did (for progress display and logs).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct StepStats {
+    pub step: u64,
+    pub loss: f32,
+    pub psnr: f32,
+    pub lr: f32,
+    pub grad_norm: f32,
+    /// Samples evaluated, and their mean per ray.
+    pub samples: u32,
+    pub samples_per_ray: f32,
+    /// Samples the rays wanted beyond the batch capacity (0 when nothing was cut).
+    pub samples_truncated: u32,
+    /// Occupied fraction of the occupancy grid after this step's update, if any.
+    pub occupied_fraction: Option<f32>,
+}
+
+/// Test-view evaluation.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Evaluation {
+    /// `(view index, PSNR)` per test view.
+    pub per_view: Vec<(usize, f32)>,
+    /// Mean of the per-view PSNRs (the convention of NeRF papers).
+    pub mean_psnr: f32,
+}
+
+/// The optimisation loop of one run.
+pub struct Trainer {
+    pub gpu: Gpu,
+    pub scene: Scene,
+    pub model: Model,
+    adam: Adam,
+    grad_norm: GradNorm,
+    photometric: Photometric,
+    bufs: BatchBuffers,
+    targets: GpuBuffer<[f32; 4]>,
+    d_rays: GpuBuffer<RayOutput>,
+    field_grads: FieldGrads,
+    step: u64,
+}
+
+impl Trainer {
+    /// A new run on `scene` with `config` (the scene path in the config is informative).
+    pub fn new(gpu: Gpu, scene: Scene, config: RunConfig) -> Result<Trainer, TrainError> {
+        config.optim.validate()?;
+        if scene.split.train.is_empty() {
+            return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
+        }
+        let model = Model::new(&gpu, &scene, config.clone())?;
+        let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
+        let n = config.train.rays_per_batch;
+        let capacity = config.train.max_samples;
+        Ok(Trainer {
+            grad_norm: GradNorm::new(&gpu)?,
+            photometric: Photometric::new(&gpu, n)?,
+            bufs: BatchBuffers::new(&gpu, n, capacity)?,
+            targets: GpuBuffer::zeros(&gpu, "targets", n as usize)?,
+            d_rays: GpuBuffer::zeros(&gpu, "d rays", n as usize)?,
+            field_grads: FieldGrads::new(&gpu, capacity)?,
+            gpu,
+            scene,
+            model,
+            adam,
+            step: 0,
+        })
+    }
+
+    /// Resumes from a checkpoint: parameters, optimizer state and step; the occupancy
+    /// grid is rebuilt from the restored field.
+    pub fn resume(gpu: Gpu, scene: Scene, ckpt: Checkpoint) -> Result<Trainer, TrainError> {
+        let mut t = Trainer::new(gpu, scene, ckpt.config)?;
+        t.model.field.import(&t.gpu, &ckpt.field)?;
+        t.adam.import_state(&t.gpu, &ckpt.optimizer)?;
+        t.step = ckpt.step;
+        t.model.update_grid(&t.gpu, t.step, t.grid_seed(), true)?;
+        Ok(t)
+    }
+
+    pub fn config(&self) -> &RunConfig {
+        &self.model.config
+    }
+
+    /// Steps done so far.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    fn grid_seed(&self) -> u32 {
+        (self.config().train.seed as u32).wrapping_mul(0x9E37_79B9) ^ (self.step as u32)
+    }
+
+    fn apply_level_anneal(&mut self) {
+        let levels = self.model.field.encoding_levels();
+        if let Some(a) = &self.model.config.train.level_anneal
+            && levels > 0
+        {
+            let frac = if a.steps == 0 { 1.0 } else { (self.step as f64 / a.steps as f64).min(1.0) };
+            let start = a.start_levels.min(levels) as f64;
+            let active = (start + frac * (levels as f64 - start)).floor() as u32;
+            self.model.field.set_active_levels(active.max(1));
+        }
+    }
+
+    /// One optimisation step (see the module doc).
+    pub fn step(&mut self) -> Result<StepStats, TrainError> {
+        let gpu = self.gpu.clone();
+        let step = self.step;
+        let seed = self.config().train.seed;
+        self.apply_level_anneal();
+        let update = self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
+
+        let n = self.config().train.rays_per_batch;
+        let batch = rays::random_pixels(&self.scene, n, seed, step);
+        self.bufs.rays.write(&gpu, &batch.rays);
+        self.targets.write(&gpu, &batch.targets);
+        let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
+        self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), false)?;
+
+        let bufs = &self.bufs;
+        let mut enc = gpu.encoder();
+        self.model.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, step as u32)?;
+        self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n, n as f32, 1.0);
+        self.model.renderer.backward(
+            &mut enc,
+            &bufs.batch,
+            &bufs.field_out,
+            &bufs.render_out,
+            &self.d_rays,
+            &self.field_grads,
+            false,
+        )?;
+        enc.submit();
+        self.model.field.zero_grads(&gpu);
+        self.model.field.backward(&gpu, &bufs.batch, &self.field_grads, false)?;
+
+        // Schedules count steps from 1 (mip-NeRF convention).
+        let lr = self.config().optim.schedule.lr(step + 1);
+        let clip = self.config().optim.clip;
+        let groups: Vec<ParamGroup> = self.model.field.params();
+        let mut enc = gpu.encoder();
+        self.grad_norm.record(&gpu, &mut enc, &ParamGroup::grads_of(&groups), &clip)?;
+        self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
+        enc.submit();
+
+        let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
+        let grad = self.grad_norm.read(&gpu)?;
+        let counts = bufs.batch.count.read(&gpu)?;
+        self.step += 1;
+        if !mse.is_finite() {
+            return Err(TrainError::NonFinite { step, what: "the photometric loss".into() });
+        }
+        if !grad.all_finite() {
+            return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
+        }
+        let n_cells = self.config().sampler.resolution.pow(3) as f32;
+        Ok(StepStats {
+            step,
+            loss: mse,
+            psnr: psnr(mse),
+            lr,
+            grad_norm: grad.raw_norm,
+            samples: counts[0],
+            samples_per_ray: counts[0] as f32 / n as f32,
+            samples_truncated: counts[1].saturating_sub(counts[0]),
+            occupied_fraction: update.map(|u| u.occupied_cells as f32 / n_cells),
+        })
+    }
+
+    /// A checkpoint of the current state (reads the GPU).
+    pub fn checkpoint(&self) -> Result<Checkpoint, TrainError> {
+        Ok(Checkpoint {
+            step: self.step,
+            config: self.config().clone(),
+            field: self.model.field.export(&self.gpu)?,
+            optimizer: self.adam.export_state(&self.gpu)?,
+        })
+    }
+
+    /// Renders every test view and measures PSNR against the images.
+    pub fn evaluate(&mut self) -> Result<(Evaluation, Vec<(usize, RenderedView)>), TrainError> {
+        evaluate(&self.gpu, &mut self.model, &self.scene)
+    }
+}
+
+/// Renders the test views of `scene` with `model` and measures PSNR per view.
+pub fn evaluate(gpu: &Gpu, model: &mut Model, scene: &Scene) -> Result<(Evaluation, Vec<(usize, RenderedView)>), TrainError> {
+    let mut per_view = Vec::new();
+    let mut renders = Vec::new();
+    for &v in &scene.split.test {
+        let r = model.render_view(gpu, scene, v)?;
+        let img = &scene.views[v].image.data;
+        let mut se = 0.0f64;
+        for (p, px) in r.rgb.iter().enumerate() {
+            for c in 0..3 {
+                se += ((px[c] - img[3 * p + c]) as f64).powi(2);
+            }
+        }
+        let mse = se / (3 * r.rgb.len()).max(1) as f64;
+        per_view.push((v, psnr(mse as f32)));
+        renders.push((v, r));
+    }
+    let mean_psnr = if per_view.is_empty() { 0.0 } else { per_view.iter().map(|p| p.1).sum::<f32>() / per_view.len() as f32 };
+    Ok((Evaluation { per_view, mean_psnr }, renders))
+}

@@ -1,0 +1,185 @@
+//! A trained (or training) model: field + occupancy grid + sampler + renderer, and
+//! rendering of arbitrary rays and whole views with it.
+//!
+//! Invariants: the model never changes parameters (the [`Trainer`](super::Trainer)
+//! does); the occupancy grid is refreshed only through [`Model::update_grid`], from the
+//! field's own densities; rendering for images uses no jitter (deterministic output).
+
+use crate::data::Scene;
+use crate::field::{Field, GridField};
+use crate::gpu::{Gpu, GpuBuffer};
+use crate::render::{Background, RenderOutputs, Renderer};
+use crate::sampler::{GridUpdate, March, OccupancyGrid, Sampler, SamplerMode};
+use crate::samples::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
+
+use super::config::{Backend, RunConfig};
+use super::TrainError;
+
+/// Rays rendered per chunk when rendering images.
+const RENDER_CHUNK: u32 = 4096;
+
+/// A rendered view: per pixel, row-major.
+#[derive(Clone, Debug)]
+pub struct RenderedView {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<[f32; 3]>,
+    pub opacity: Vec<f32>,
+    /// Expected ray distance `sum w_i t_i` (NDC parameter for forward-facing scenes).
+    pub depth: Vec<f32>,
+    /// Expected depth along the camera axis, `depth * z_scale` (world scenes only;
+    /// equal to `depth` in NDC, whose parameter is already along the axis).
+    pub z_depth: Vec<f32>,
+    /// `sum w_i n_i` (not renormalised).
+    pub normal: Vec<[f32; 3]>,
+    /// Field samples evaluated.
+    pub samples: u64,
+}
+
+impl RenderedView {
+    /// Normals renormalised to unit length (zero where the rendered normal vanishes).
+    pub fn unit_normals(&self) -> Vec<[f32; 3]> {
+        self.normal
+            .iter()
+            .map(|n| {
+                let v = glam::Vec3::from(*n);
+                let l = v.length();
+                if l > 1e-6 { (v / l).to_array() } else { [0.0; 3] }
+            })
+            .collect()
+    }
+}
+
+/// Per-batch GPU buffers of one batch size.
+pub(super) struct BatchBuffers {
+    pub rays: GpuBuffer<GpuRay>,
+    pub batch: SampleBatch,
+    pub field_out: FieldOutputs,
+    pub render_out: RenderOutputs,
+}
+
+impl BatchBuffers {
+    pub fn new(gpu: &Gpu, n_rays: u32, capacity: u32) -> Result<Self, TrainError> {
+        Ok(Self {
+            rays: GpuBuffer::zeros(gpu, "rays", n_rays as usize)?,
+            batch: SampleBatch::new(gpu, n_rays, capacity)?,
+            field_out: FieldOutputs::new(gpu, capacity)?,
+            render_out: RenderOutputs::new(gpu, n_rays, None)?,
+        })
+    }
+}
+
+/// Field, occupancy grid, sampler and renderer of one run.
+pub struct Model {
+    pub config: RunConfig,
+    pub field: Box<dyn Field>,
+    pub grid: OccupancyGrid,
+    pub(super) sampler: Sampler,
+    pub(super) renderer: Renderer,
+    grid_densities: Option<GpuBuffer<f32>>,
+    render_buffers: Option<BatchBuffers>,
+}
+
+/// The background a run renders over: the configured one, else the scene's, else black.
+pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
+    match config.scene.background.or(scene.background) {
+        Some(rgb) => Background::Color { rgb },
+        None => config.render.background,
+    }
+}
+
+impl Model {
+    /// A freshly initialised model for `scene`.
+    pub fn new(gpu: &Gpu, scene: &Scene, config: RunConfig) -> Result<Model, TrainError> {
+        let field: Box<dyn Field> = match config.backend {
+            Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
+        };
+        let grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
+        let sampler = Sampler::new(&config.sampler, scene.aabb)?;
+        let mut render_config = config.render;
+        render_config.background = background_of(&config, scene);
+        let renderer = Renderer::new(gpu, render_config)?;
+        Ok(Model { config, field, grid, sampler, renderer, grid_densities: None, render_buffers: None })
+    }
+
+    /// Refreshes the occupancy grid from the field if `step` is an update step (or
+    /// `force`). Returns what the update did.
+    pub fn update_grid(&mut self, gpu: &Gpu, step: u64, seed: u32, force: bool) -> Result<Option<GridUpdate>, TrainError> {
+        if self.config.sampler.mode == SamplerMode::Uniform || !(force || self.grid.should_update(step as u32)) {
+            return Ok(None);
+        }
+        let query = self.grid.query_points(gpu, step as u32, seed)?;
+        if self.grid_densities.as_ref().is_none_or(|b| b.len() < query.count as usize) {
+            self.grid_densities = Some(GpuBuffer::zeros(gpu, "grid densities", query.positions.len())?);
+        }
+        let densities = self.grid_densities.as_ref().unwrap();
+        self.field.density(gpu, &query.positions, query.count, densities)?;
+        Ok(Some(self.grid.update(gpu, &query.cells, densities, query.count)?))
+    }
+
+    /// Samples `bufs.rays[..n]` into `bufs.batch` and runs the field forward.
+    pub(super) fn sample_and_shade(
+        &mut self,
+        gpu: &Gpu,
+        bufs: &BatchBuffers,
+        jitter_seed: Option<u32>,
+        normals: bool,
+    ) -> Result<(), TrainError> {
+        // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
+        let march = match self.config.sampler.mode {
+            SamplerMode::Occupancy => March::Occupancy(&self.grid),
+            SamplerMode::Uniform => March::Uniform,
+        };
+        self.sampler.sample(gpu, march, &bufs.rays, &bufs.batch, jitter_seed)?;
+        self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
+        Ok(())
+    }
+
+    /// Renders arbitrary rays (no jitter), `normals` on request. Returns the per-ray
+    /// outputs and the number of samples evaluated.
+    pub fn render_rays(&mut self, gpu: &Gpu, rays: &[GpuRay], normals: bool) -> Result<(Vec<RayOutput>, u64), TrainError> {
+        let capacity = RENDER_CHUNK * self.config.sampler.max_samples_per_ray.min(1024);
+        let capacity = capacity.min((gpu.limits().max_storage_buffer_binding_size / 32) as u32);
+        if self.render_buffers.is_none() {
+            self.render_buffers = Some(BatchBuffers::new(gpu, RENDER_CHUNK, capacity)?);
+        }
+        let bufs = self.render_buffers.take().unwrap();
+        let result = (|| {
+            let mut out = Vec::with_capacity(rays.len());
+            let mut samples = 0u64;
+            for chunk in rays.chunks(RENDER_CHUNK as usize) {
+                let mut padded = chunk.to_vec();
+                padded.resize(RENDER_CHUNK as usize, GpuRay::default());
+                bufs.rays.write(gpu, &padded);
+                self.sample_and_shade(gpu, &bufs, None, normals)?;
+                let mut enc = gpu.encoder();
+                self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
+                enc.submit();
+                out.extend_from_slice(&bufs.render_out.rays.read(gpu)?[..chunk.len()]);
+                samples += bufs.batch.count.read(gpu)?[0] as u64;
+            }
+            Ok((out, samples))
+        })();
+        self.render_buffers = Some(bufs);
+        result
+    }
+
+    /// Renders view `view` of `scene` with depth and normals.
+    pub fn render_view(&mut self, gpu: &Gpu, scene: &Scene, view: usize) -> Result<RenderedView, TrainError> {
+        let cam = &scene.views[view].camera;
+        let rays = scene.image_rays(view);
+        let gpu_rays: Vec<GpuRay> = rays.iter().map(|r| super::rays::to_gpu_ray(scene, r)).collect();
+        let (outs, samples) = self.render_rays(gpu, &gpu_rays, true)?;
+        let ndc = scene.ndc.is_some();
+        Ok(RenderedView {
+            width: cam.width,
+            height: cam.height,
+            rgb: outs.iter().map(|o| o.rgb).collect(),
+            opacity: outs.iter().map(|o| o.opacity).collect(),
+            depth: outs.iter().map(|o| o.depth).collect(),
+            z_depth: outs.iter().zip(&rays).map(|(o, r)| if ndc { o.depth } else { o.depth * r.z_scale }).collect(),
+            normal: outs.iter().map(|o| o.normal).collect(),
+            samples,
+        })
+    }
+}

@@ -1,0 +1,123 @@
+//! Rays for training and rendering: scene pixels to [`GpuRay`]s, and the random pixel
+//! batches of a training step.
+//!
+//! Invariants: a ray's `[t_min, t_max]` is the scene's near/far range clipped to the
+//! scene AABB (world-space scenes) or `[0, 1]` (NDC scenes); a ray that misses the
+//! AABB gets `t_min == t_max` and therefore no samples. Pixel selection is a pure
+//! function of the seed and step (deterministic runs, exact resumes).
+
+use glam::Vec3;
+
+use crate::data::{Ray, Scene};
+use crate::samples::GpuRay;
+
+/// SplitMix64: a small, well-mixed deterministic generator.
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `0..n`.
+    pub fn below(&mut self, n: u64) -> u64 {
+        ((self.next_u64() as u128 * n as u128) >> 64) as u64
+    }
+
+    pub fn next_u32(&mut self) -> u32 {
+        (self.next_u64() >> 32) as u32
+    }
+}
+
+/// `[t_enter, t_exit]` of a ray against an AABB (slab test), if it hits.
+pub fn ray_aabb(origin: Vec3, dir: Vec3, aabb: [Vec3; 2]) -> Option<(f32, f32)> {
+    let inv = dir.recip();
+    let t0 = (aabb[0] - origin) * inv;
+    let t1 = (aabb[1] - origin) * inv;
+    let enter = t0.min(t1).max_element();
+    let exit = t0.max(t1).min_element();
+    (exit >= enter.max(0.0)).then_some((enter.max(0.0), exit))
+}
+
+/// The kernel-side ray of a scene ray (world or NDC, as [`Scene::ray`] gives it).
+pub fn to_gpu_ray(scene: &Scene, ray: &Ray) -> GpuRay {
+    let (t_min, t_max) = if scene.ndc.is_some() {
+        (scene.near, scene.far)
+    } else {
+        match ray_aabb(ray.origin, ray.dir, scene.aabb) {
+            Some((enter, exit)) => {
+                let (lo, hi) = (enter.max(scene.near), exit.min(scene.far));
+                if hi > lo { (lo, hi) } else { (lo, lo) }
+            }
+            None => (scene.near, scene.near),
+        }
+    };
+    GpuRay { origin: ray.origin.to_array(), t_min, dir: ray.dir.to_array(), t_max }
+}
+
+/// All rays of one view, row-major.
+pub fn view_rays(scene: &Scene, view: usize) -> Vec<GpuRay> {
+    scene.image_rays(view).iter().map(|r| to_gpu_ray(scene, r)).collect()
+}
+
+/// A step's random training pixels: uniform over the pixels of all training views.
+pub struct PixelBatch {
+    pub rays: Vec<GpuRay>,
+    /// Target colour and weight (1).
+    pub targets: Vec<[f32; 4]>,
+}
+
+/// Draws `n` training pixels for `step` (a pure function of `seed` and `step`).
+pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch {
+    let mut rng = Rng::new(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step);
+    let train = &scene.split.train;
+    let (w, h) = scene.image_size();
+    let mut rays = Vec::with_capacity(n as usize);
+    let mut targets = Vec::with_capacity(n as usize);
+    for _ in 0..n {
+        let view = train[rng.below(train.len() as u64) as usize];
+        let x = rng.below(w as u64) as u32;
+        let y = rng.below(h as u64) as u32;
+        rays.push(to_gpu_ray(scene, &scene.ray(view, x, y)));
+        let px = scene.views[view].image.get(x, y);
+        targets.push([px[0], px[1], px[2], 1.0]);
+    }
+    PixelBatch { rays, targets }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slab_test_hits_and_misses() {
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        let (a, b) = ray_aabb(Vec3::new(0.0, 0.0, -3.0), Vec3::Z, aabb).unwrap();
+        assert!((a - 2.0).abs() < 1e-6 && (b - 4.0).abs() < 1e-6);
+        assert!(ray_aabb(Vec3::new(0.0, 3.0, -3.0), Vec3::Z, aabb).is_none());
+        let (a, _) = ray_aabb(Vec3::ZERO, Vec3::X, aabb).unwrap();
+        assert_eq!(a, 0.0, "origin inside: starts at 0");
+    }
+
+    #[test]
+    fn rng_is_deterministic_and_roughly_uniform() {
+        let mut a = Rng::new(5);
+        let mut b = Rng::new(5);
+        let xs: Vec<u64> = (0..1000).map(|_| a.below(10)).collect();
+        let ys: Vec<u64> = (0..1000).map(|_| b.below(10)).collect();
+        assert_eq!(xs, ys);
+        for k in 0..10 {
+            let c = xs.iter().filter(|&&x| x == k).count();
+            assert!((60..140).contains(&c), "bucket {k}: {c}");
+        }
+    }
+}

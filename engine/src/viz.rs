@@ -1,0 +1,94 @@
+//! Images a person looks at: depth colourised with the turbo colour map, normals
+//! mapped to RGB, opacity as grey. Pure functions from per-pixel values to
+//! [`ImageRgb`]; the CLI writes them as PNGs next to the raw EXRs.
+//!
+//! Invariants: depth colour ranges are robust (2nd-98th percentile of the pixels
+//! where `valid`), so one floater does not flatten the map; normals map
+//! `n -> (n + 1) / 2` (world space, the usual convention), zero normals to black.
+
+use crate::data::ImageRgb;
+
+/// Turbo colour map (Google's polynomial approximation), `t` in `[0, 1]`.
+pub fn turbo(t: f32) -> [f32; 3] {
+    let t = t.clamp(0.0, 1.0) as f64;
+    let r = 0.13572138 + t * (4.61539260 + t * (-42.66032258 + t * (132.13108234 + t * (-152.94239396 + t * 59.28637943))));
+    let g = 0.09140261 + t * (2.19418839 + t * (4.84296658 + t * (-14.18503333 + t * (4.27729857 + t * 2.82956604))));
+    let b = 0.10667330 + t * (12.64194608 + t * (-60.58204836 + t * (110.36276771 + t * (-89.90310912 + t * 27.34824973))));
+    [r.clamp(0.0, 1.0) as f32, g.clamp(0.0, 1.0) as f32, b.clamp(0.0, 1.0) as f32]
+}
+
+/// The `q` quantile (0..1) of `values` (NaNs ignored); `None` if empty.
+fn quantile(values: &mut Vec<f32>, q: f32) -> Option<f32> {
+    values.retain(|v| v.is_finite());
+    if values.is_empty() {
+        return None;
+    }
+    let k = ((values.len() - 1) as f32 * q).round() as usize;
+    Some(*values.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1)
+}
+
+/// Depth colourised near = blue .. far = red over the robust range of the pixels
+/// where `valid` (all when `None`); invalid pixels black. Returns the range used.
+pub fn depth_image(width: u32, height: u32, depth: &[f32], valid: Option<&[bool]>) -> (ImageRgb, [f32; 2]) {
+    let is_valid = |i: usize| valid.is_none_or(|v| v[i]) && depth[i].is_finite();
+    let mut vals: Vec<f32> = (0..depth.len()).filter(|&i| is_valid(i)).map(|i| depth[i]).collect();
+    let lo = quantile(&mut vals.clone(), 0.02).unwrap_or(0.0);
+    let hi = quantile(&mut vals, 0.98).unwrap_or(1.0);
+    let span = (hi - lo).max(1e-6);
+    let mut img = ImageRgb::new(width, height);
+    for (i, &d) in depth.iter().enumerate() {
+        let rgb = if is_valid(i) { turbo((d - lo) / span) } else { [0.0; 3] };
+        img.data[3 * i..3 * i + 3].copy_from_slice(&rgb);
+    }
+    (img, [lo, hi])
+}
+
+/// Normals to RGB: `(n + 1) / 2`.
+pub fn normal_image(width: u32, height: u32, normals: &[[f32; 3]]) -> ImageRgb {
+    let mut img = ImageRgb::new(width, height);
+    for (i, n) in normals.iter().enumerate() {
+        let zero = n.iter().all(|&c| c == 0.0);
+        for c in 0..3 {
+            img.data[3 * i + c] = if zero { 0.0 } else { (n[c] * 0.5 + 0.5).clamp(0.0, 1.0) };
+        }
+    }
+    img
+}
+
+/// A scalar in `[0, 1]` as grey.
+pub fn grey_image(width: u32, height: u32, values: &[f32]) -> ImageRgb {
+    let mut img = ImageRgb::new(width, height);
+    for (i, &v) in values.iter().enumerate() {
+        img.data[3 * i..3 * i + 3].fill(v.clamp(0.0, 1.0));
+    }
+    img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn turbo_runs_blue_to_red() {
+        let lo = turbo(0.0);
+        let hi = turbo(1.0);
+        assert!(lo[2] > lo[0] && hi[0] > hi[2]);
+    }
+
+    #[test]
+    fn depth_range_ignores_outliers_and_invalid_pixels() {
+        let mut depth: Vec<f32> = (0..100).map(|i| 1.0 + i as f32 / 100.0).collect();
+        depth[0] = 1000.0;
+        let valid: Vec<bool> = (0..100).map(|i| i != 50).collect();
+        let (img, [lo, hi]) = depth_image(10, 10, &depth, Some(&valid));
+        assert!(lo >= 1.0 && hi < 2.0, "range {lo}..{hi}");
+        assert_eq!(&img.data[150..153], &[0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn normals_map_to_rgb() {
+        let img = normal_image(2, 1, &[[0.0, 0.0, 1.0], [0.0; 3]]);
+        assert_eq!(&img.data[..3], &[0.5, 0.5, 1.0]);
+        assert_eq!(&img.data[3..], &[0.0, 0.0, 0.0]);
+    }
+}

@@ -1,0 +1,75 @@
+//! `edgenerf render`: render views of a trained run (RGB, depth, normals, opacity),
+//! and the test-view evaluation shared with `train`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use edgenerf::data::{LoadOptions, Scene};
+use edgenerf::gpu::{Gpu, GpuOptions};
+use edgenerf::train::{Checkpoint, Trainer};
+use indicatif::ProgressBar;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A checkpoint file, or a run directory holding checkpoint.safetensors.
+    checkpoint: PathBuf,
+    /// Which views: test, train or all.
+    #[arg(long, default_value = "test", value_parser = ["test", "train", "all"])]
+    split: String,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Scene directory (default: the path recorded in the checkpoint's config).
+    #[arg(long)]
+    scene: Option<PathBuf>,
+}
+
+pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
+    let path = if args.checkpoint.is_dir() { args.checkpoint.join("checkpoint.safetensors") } else { args.checkpoint.clone() };
+    let mut ckpt = Checkpoint::load(&path)?;
+    if let Some(scene) = &args.scene {
+        ckpt.config.scene.path = scene.clone();
+    }
+    let mut opts = LoadOptions { views: ckpt.config.scene.views, ..Default::default() };
+    if let Some(bg) = ckpt.config.scene.background {
+        opts.background = bg;
+    }
+    let scene_path = ckpt.config.scene.path.clone();
+    let scene = Scene::load(&scene_path, &opts)
+        .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
+    let gpu = Gpu::new(gpu_opts)?;
+    let mut trainer = Trainer::resume(gpu, scene, ckpt)?;
+    let views: Vec<usize> = match args.split.as_str() {
+        "test" => trainer.scene.split.test.clone(),
+        "train" => trainer.scene.split.train.clone(),
+        "all" => (0..trainer.scene.views.len()).collect(),
+        other => bail!("unknown split {other}"),
+    };
+    if args.split == "test" {
+        return evaluate_and_write(&mut trainer, &args.out);
+    }
+    let bar = ProgressBar::new(views.len() as u64);
+    for v in views {
+        let r = trainer.model.render_view(&trainer.gpu, &trainer.scene, v)?;
+        crate::output::write_view(&args.out, &trainer.scene.views[v].name, &r)?;
+        bar.inc(1);
+    }
+    bar.finish();
+    eprintln!("wrote renders to {}", args.out.display());
+    Ok(())
+}
+
+/// Renders the test views, writes them under `dir`, prints per-view and mean PSNR and
+/// saves them as `dir/metrics.json`.
+pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<()> {
+    let (eval, renders) = trainer.evaluate()?;
+    for (v, r) in &renders {
+        crate::output::write_view(dir, &trainer.scene.views[*v].name, r)?;
+    }
+    for (v, p) in &eval.per_view {
+        println!("test view {v:>3} ({}): PSNR {p:.2} dB", trainer.scene.views[*v].name);
+    }
+    println!("test PSNR {:.2} dB (mean over {} views)", eval.mean_psnr, eval.per_view.len());
+    std::fs::write(dir.join("metrics.json"), serde_json::to_string_pretty(&eval)?)?;
+    Ok(())
+}

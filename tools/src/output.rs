@@ -1,0 +1,27 @@
+//! Files a run writes for a rendered view: RGB PNG, depth EXR + colourised PNG,
+//! normals EXR + PNG, opacity PNG. Shared by `train` (final test renders) and `render`.
+
+use std::path::Path;
+
+use anyhow::Context;
+use edgenerf::data::{ImageRgb, save_depth_exr, save_normal_exr};
+use edgenerf::train::RenderedView;
+use edgenerf::viz;
+
+/// Writes `<dir>/<name>_{rgb,depth,normal,opacity}.*`.
+pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let (w, h) = (r.width, r.height);
+    let mut rgb = ImageRgb::new(w, h);
+    for (i, px) in r.rgb.iter().enumerate() {
+        rgb.data[3 * i..3 * i + 3].copy_from_slice(px);
+    }
+    rgb.save_png(dir.join(format!("{name}_rgb.png")))?;
+    save_depth_exr(dir.join(format!("{name}_depth.exr")), w, h, &r.depth)?;
+    let valid: Vec<bool> = r.opacity.iter().map(|&a| a > 0.5).collect();
+    viz::depth_image(w, h, &r.depth, Some(&valid)).0.save_png(dir.join(format!("{name}_depth.png")))?;
+    save_normal_exr(dir.join(format!("{name}_normal.exr")), w, h, &r.normal)?;
+    viz::normal_image(w, h, &r.unit_normals()).save_png(dir.join(format!("{name}_normal.png")))?;
+    viz::grey_image(w, h, &r.opacity).save_png(dir.join(format!("{name}_opacity.png")))?;
+    Ok(())
+}
