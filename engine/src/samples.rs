@@ -25,7 +25,9 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 
-/// A ray as kernels read it. `dir` is unit length in world space (not in NDC).
+/// A ray as kernels read it. `dir` is unit length in world space; NDC rays keep
+/// NeRF's non-unit direction (so `t` in `[0, 1]` spans near plane to infinity). The
+/// sampler's step is a length, `dt = step / |dir|`, so both work.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
 pub struct GpuRay {

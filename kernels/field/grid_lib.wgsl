@@ -6,7 +6,9 @@
 // Layouts (all set by the host, see GridLayout):
 // * table: per level l, `levels[l].size` entries of 2 features starting at entry
 //   `levels[l].offset`; entry e holds features (2e, 2e+1) of the f32 parameter buffer.
-// * weights (vec4 units, row-major [out][in], row stride = in/4):
+// * weights: a uniform copy of the f32 MLP parameters (the host copies them before
+//   every pass; sized for the largest configuration). vec4 units, row-major [out][in],
+//   row stride = in/4:
 //   W1 [width][in_pad] at w1, W2 [16][width] at w2, C1 [width][32] at c1,
 //   C2 [width][width] at c2, C3 [4][width] at c3 (row 3 is padding, always 0).
 // * Per-thread vectors live in `Vec64` (64 floats); only the first n/4 entries are used.

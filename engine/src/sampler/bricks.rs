@@ -34,7 +34,9 @@ pub struct GpuBvhNode {
     /// Leaf: number of bricks (> 0); inner node: 0.
     pub prim_count: u32,
     pub max: [f32; 3],
-    /// Leaf: first brick in the reordered brick array; inner node: first child.
+    /// Leaf: first brick in the reordered brick array; inner node: first child;
+    /// brick box (in `prims`): the brick's index in [`BrickBvh::bricks`] (unused by
+    /// the kernel).
     pub first_index: u32,
 }
 
@@ -120,8 +122,7 @@ impl BrickBvh {
             return Ok(Self::default());
         }
         let bvh = build_bvh2(&bricks, BvhBuildParams::medium_build(), &mut Duration::default());
-        let nodes: Vec<GpuBvhNode> =
-            bvh.nodes.iter().map(|n| gpu_box(n.aabb(), n.prim_count, n.first_index)).collect();
+        let nodes: Vec<GpuBvhNode> = bvh.nodes.iter().map(|n| gpu_box(n.aabb(), n.prim_count, n.first_index)).collect();
         let prims: Vec<GpuBvhNode> =
             bvh.primitive_indices.iter().map(|&i| gpu_box(&bricks[i as usize], 0, i)).collect();
         let depth = tree_depth(&nodes);

@@ -7,8 +7,8 @@
 //! the densities back and, on the GPU: scatters the maximum density per queried cell
 //! (`atomicMax` on the bits of non-negative floats: order-independent), applies
 //! `cell <- max(decay * cell, density)` to the queried cells, sums the grid with a
-//! fixed-order reduction for the mean, and writes the bitfield `cell > min(threshold,
-//! mean)`. The bitfield is then read back (res^3 / 8 bytes, 256 KiB at 128^3) and,
+//! fixed-order reduction for the mean, and writes the bitfield `cell > min(threshold / step,
+//! mean)` (the threshold is on one step's opacity, see `SamplerConfig::threshold`). The bitfield is then read back (res^3 / 8 bytes, 256 KiB at 128^3) and,
 //! when it changed, the occupied-cell list (for the next query) and the brick BVH
 //! ([`super::bricks`]) are rebuilt and uploaded.
 //!
@@ -44,8 +44,11 @@ const SCATTER_MAX: KernelSpec = KernelSpec {
 };
 const EMA: KernelSpec =
     KernelSpec { file: FILE, entry: "ema", bindings: &[Binding::Uniform, Binding::ReadWrite, Binding::ReadWrite] };
-const REDUCE: KernelSpec =
-    KernelSpec { file: FILE, entry: "reduce_sum", bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite] };
+const REDUCE: KernelSpec = KernelSpec {
+    file: FILE,
+    entry: "reduce_sum",
+    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite],
+};
 const THRESHOLD: KernelSpec = KernelSpec {
     file: FILE,
     entry: "threshold_bits",
@@ -138,7 +141,7 @@ impl OccupancyGrid {
         let n_words = n_cells.div_ceil(32) as usize;
         let geom = GridGeom { aabb_min: aabb[0].to_array(), res, aabb_max: aabb[1].to_array(), n_cells };
         let mut host_bits = vec![u32::MAX; n_words];
-        if n_cells % 32 != 0 {
+        if !n_cells.is_multiple_of(32) {
             host_bits[n_words - 1] = (1u32 << (n_cells % 32)) - 1;
         }
         let mut grid = Self {
@@ -163,7 +166,7 @@ impl OccupancyGrid {
 
     /// Whether the train loop should update the grid at `step`.
     pub fn should_update(&self, step: u32) -> bool {
-        step % self.config.update_interval == 0
+        step.is_multiple_of(self.config.update_interval)
     }
 
     /// Chooses the cells of the update at `step` and one jittered point in each
@@ -211,7 +214,8 @@ impl OccupancyGrid {
             densities.len()
         );
         let n_cells = self.geom.n_cells;
-        let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold: self.config.threshold };
+        let threshold = self.config.density_threshold(self.layout.aabb);
+        let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold };
         let mut enc = gpu.encoder();
         let p_update = enc.uniform(&params);
         enc.dispatch_threads(
@@ -346,6 +350,8 @@ pub(crate) mod tests {
     /// bitfield. Returns the cells queried.
     struct CpuGrid {
         cfg: SamplerConfig,
+        /// `cfg.density_threshold(aabb)`.
+        threshold: f32,
         density: Vec<f32>,
         bits: Vec<bool>,
     }
@@ -381,7 +387,7 @@ pub(crate) mod tests {
                 }
             }
             let mean = self.density.iter().map(|&v| v as f64).sum::<f64>() / self.density.len() as f64;
-            let thr = (self.cfg.threshold as f64).min(mean) as f32;
+            let thr = (self.threshold as f64).min(mean) as f32;
             self.bits = self.density.iter().map(|&v| v > thr).collect();
         }
     }
@@ -403,7 +409,8 @@ pub(crate) mod tests {
         let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
         let n = 24u32.pow(3);
         assert_eq!(grid.occupied_cells(), n, "a new grid is fully occupied");
-        let mut cpu = CpuGrid { cfg: cfg.clone(), density: vec![0.0; n as usize], bits: vec![true; n as usize] };
+        let threshold = cfg.density_threshold(aabb);
+        let mut cpu = CpuGrid { cfg: cfg.clone(), threshold, density: vec![0.0; n as usize], bits: vec![true; n as usize] };
         assert!(grid.should_update(0) && grid.should_update(32) && !grid.should_update(17));
         let mut saw_random_phase = false;
         for step in (0..160).step_by(16) {
@@ -436,7 +443,7 @@ pub(crate) mod tests {
             assert_eq!(got, cpu.density, "EMA at step {step}");
             let mean = cpu.density.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
             assert!((upd.mean_density as f64 - mean).abs() < 1e-5 * mean.max(1e-3), "{} vs {mean}", upd.mean_density);
-            let thr = cfg.threshold.min(mean as f32);
+            let thr = threshold.min(mean as f32);
             for c in 0..n {
                 let (x, y, z) = (c % 24, (c / 24) % 24, c / 576);
                 let v = cpu.density[c as usize];

@@ -73,8 +73,7 @@ impl RayIntervals {
         assert!(n_rays <= self.max_rays && rays.len() >= n_rays as usize, "{n_rays} rays for {}", self.max_rays);
         let (nodes, prims, n_nodes) = grid.gpu_bvh();
         let kernel = gpu.kernel(&SPEC)?;
-        let params =
-            enc.uniform(&Params { n_rays, n_nodes, max_intervals: self.max_intervals, _pad: 0 });
+        let params = enc.uniform(&Params { n_rays, n_nodes, max_intervals: self.max_intervals, _pad: 0 });
         enc.dispatch_threads(
             &kernel,
             &[&params, &rays.buffer, &nodes.buffer, &prims.buffer, &self.intervals.buffer, &self.counts.buffer],
@@ -109,13 +108,13 @@ pub fn ray_intervals(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use glam::{Vec3, Vec3A};
     use obvhs::aabb::Aabb;
 
+    use super::super::SamplerConfig;
     use super::super::bricks::BrickBvh;
     use super::super::grid::tests::{rand_u32, unit_f32};
-    use super::super::SamplerConfig;
     use super::*;
 
     /// CPU mirror of `safe_inverse_dir` + `ray_box` in `kernels/sampler/common.wgsl`.
@@ -162,12 +161,8 @@ mod tests {
     fn cpu_bvh_intervals(bvh: &BrickBvh, ray: &GpuRay, cap: usize) -> Vec<[f32; 2]> {
         let mut raw = Vec::new();
         if let Some(tree) = &bvh.bvh {
-            let r = obvhs::ray::Ray::new(
-                Vec3A::from_array(ray.origin),
-                Vec3A::from_array(ray.dir),
-                ray.t_min,
-                ray.t_max,
-            );
+            let r =
+                obvhs::ray::Ray::new(Vec3A::from_array(ray.origin), Vec3A::from_array(ray.dir), ray.t_min, ray.t_max);
             tree.ray_traverse_anyhit(r, |_, id| {
                 let b = &bvh.bricks[tree.primitive_indices[id] as usize];
                 raw.extend(clip(ray, b));
@@ -182,20 +177,20 @@ mod tests {
 
     /// A grid whose occupancy is a random set of blobs of cells, built through the
     /// public two-phase update (warm-up: every cell queried once, density 0 or 1).
-    fn random_grid(gpu: &Gpu, cfg: &SamplerConfig, aabb: [Vec3; 2], seed: u32) -> OccupancyGrid {
+    pub(crate) fn random_grid(gpu: &Gpu, cfg: &SamplerConfig, aabb: [Vec3; 2], seed: u32) -> OccupancyGrid {
         let mut grid = OccupancyGrid::new(gpu, cfg, aabb).unwrap();
         let q = grid.query_points(gpu, 0, seed).unwrap();
         let res = cfg.resolution;
         let cells = q.cells.read(gpu).unwrap();
-        let centers: Vec<[f32; 3]> = (0..12)
-            .map(|i| [0, 1, 2].map(|k| unit_f32(rand_u32(seed, i, k + 10)) * res as f32))
-            .collect();
+        let centers: Vec<[f32; 3]> =
+            (0..12).map(|i| [0, 1, 2].map(|k| unit_f32(rand_u32(seed, i, k + 10)) * res as f32)).collect();
         let dens: Vec<f32> = cells
             .iter()
             .map(|&c| {
                 let p = [c % res, (c / res) % res, c / (res * res)].map(|v| v as f32 + 0.5);
                 let near = centers.iter().any(|ctr| (0..3).map(|k| (p[k] - ctr[k]).powi(2)).sum::<f32>() < 9.0);
-                let speckle = rand_u32(seed, c, 99) % 500 == 0;
+                // About a fifth of the bricks get a lone occupied cell.
+                let speckle = rand_u32(seed, c, 99).is_multiple_of(4 * cfg.brick_size.pow(3));
                 if near || speckle { 1.0 } else { 0.0 }
             })
             .collect();
@@ -205,7 +200,7 @@ mod tests {
         grid
     }
 
-    fn random_rays(n: u32, seed: u32, aabb: [Vec3; 2]) -> Vec<GpuRay> {
+    pub(crate) fn random_rays(n: u32, seed: u32, aabb: [Vec3; 2]) -> Vec<GpuRay> {
         let ext = aabb[1] - aabb[0];
         (0..n)
             .map(|i| {
@@ -213,15 +208,14 @@ mod tests {
                 // Origins in a box twice the AABB's size (inside and outside), random
                 // directions, random [t_min, t_max] (some rays stop inside the grid).
                 let o = aabb[0] - 0.5 * ext + 2.0 * ext * Vec3::new(u(0), u(1), u(2));
-                let d = loop {
-                    let v = Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0;
-                    if v.length() > 0.1 {
-                        break v.normalize();
-                    }
-                };
+                let d = (0..)
+                    .map(|j| Vec3::new(u(3 + 3 * j), u(4 + 3 * j), u(5 + 3 * j)) * 2.0 - 1.0)
+                    .find(|v| v.length() > 0.1)
+                    .unwrap()
+                    .normalize();
                 let d = if i % 3 == 0 { ((aabb[0] + aabb[1]) * 0.5 - o).normalize() } else { d };
-                let t_min = u(6) * 0.5;
-                let t_max = t_min + ext.length() * (0.3 + 1.5 * u(7));
+                let t_min = u(100) * 0.5;
+                let t_max = t_min + ext.length() * (0.3 + 1.5 * u(101));
                 GpuRay { origin: o.to_array(), t_min, dir: d.to_array(), t_max }
             })
             .collect()
@@ -244,18 +238,12 @@ mod tests {
         let aabb = [Vec3::new(-1.5, -1.0, -0.5), Vec3::new(2.5, 1.0, 1.5)];
         for (res, brick, seed) in [(64u32, 4u32, 3u32), (48, 8, 11), (96, 4, 5)] {
             let cfg = SamplerConfig { resolution: res, brick_size: brick, ..Default::default() };
-            let t = std::time::Instant::now();
             let grid = random_grid(&gpu, &cfg, aabb, seed);
-            eprintln!("grid {:?}", t.elapsed());
             let bvh = grid.brick_bvh();
-            let nr: u32 = std::env::var("NRAYS").map(|v| v.parse().unwrap()).unwrap_or(3000);
-            eprintln!("bricks {} nodes {} depth {}", grid.brick_bvh().bricks.len(), grid.brick_bvh().nodes.len(), grid.brick_bvh().depth);
-            let rays = random_rays(nr, seed + 1, aabb);
+            let rays = random_rays(3000, seed + 1, aabb);
             let mut multi = 0;
             for cap in [16u32, 3] {
-                let t = std::time::Instant::now();
                 let got = ray_intervals(&gpu, &grid, &rays, cap).unwrap();
-                eprintln!("gpu {:?}", t.elapsed());
                 let want: Vec<_> = rays.iter().map(|r| cpu_bvh_intervals(bvh, r, cap as usize)).collect();
                 compare(&got, &want, &format!("res {res} brick {brick} cap {cap}"));
                 let brute: Vec<_> = rays.iter().map(|r| brute_force_intervals(bvh, r, cap as usize)).collect();
@@ -273,6 +261,13 @@ mod tests {
                 }
             }
             assert!(multi > 50, "the cap of 3 is exercised: {multi} rays with more than 3 intervals");
+            let b = grid.brick_bvh();
+            eprintln!(
+                "res {res} brick {brick}: {} bricks, {} nodes, depth {}, {multi} rays with > 3 intervals",
+                b.bricks.len(),
+                b.nodes.len(),
+                b.depth
+            );
         }
     }
 

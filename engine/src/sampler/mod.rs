@@ -32,8 +32,8 @@
 //!   reaches infinity, so Instant-NGP's outer cascades have nothing to cover.
 //! * **Update rule** (Instant-NGP / nerfacc): queried cells get
 //!   `cell <- max(decay * cell, density)` (decay 0.95; several queries of one cell in
-//!   one update use their maximum), a cell is occupied iff `cell > min(threshold, mean
-//!   of all cells)` (threshold 0.01); during the first `warmup_steps` (256) every cell
+//!   one update use their maximum), a cell is occupied iff `cell > min(threshold / step, mean
+//!   of all cells)` (threshold 0.01 on the opacity `sigma * step` of one marching step); during the first `warmup_steps` (256) every cell
 //!   is queried, afterwards a quarter of the cells at random plus a quarter drawn from
 //!   the occupied ones (all of them when fewer). Updates every `update_interval` (16)
 //!   steps. Before the first update every cell counts as occupied.
@@ -111,7 +111,10 @@ pub struct SamplerConfig {
     pub resolution: u32,
     /// EMA decay of a queried cell.
     pub decay: f32,
-    /// Occupied iff cell density > min(threshold, mean density).
+    /// Occupancy threshold on the opacity of one marching step, `sigma * step`
+    /// (nerfacc's `occ_thre`): a cell is occupied iff its density exceeds
+    /// `min(threshold / step, mean density)` ([`SamplerConfig::density_threshold`]).
+    /// Measuring it per step makes it independent of the scene's units.
     pub threshold: f32,
     /// Steps between grid updates ([`OccupancyGrid::should_update`]).
     pub update_interval: u32,
@@ -187,6 +190,11 @@ impl SamplerConfig {
     /// The marching step for a scene box: `step_size`, or the diagonal / 1024.
     pub fn step_for(&self, aabb: [glam::Vec3; 2]) -> f32 {
         if self.step_size > 0.0 { self.step_size } else { (aabb[1] - aabb[0]).length() / DEFAULT_STEPS_PER_DIAGONAL }
+    }
+
+    /// The density threshold for a scene box: `threshold / step` (see [`SamplerConfig::threshold`]).
+    pub fn density_threshold(&self, aabb: [glam::Vec3; 2]) -> f32 {
+        self.threshold / self.step_for(aabb)
     }
 }
 

@@ -12,8 +12,9 @@
 //! the gradient statistics and the sample count) for logging and the NaN guard.
 //!
 //! Invariants:
-//! * A step whose loss or gradients are not finite changes no parameter (Adam skips
-//!   non-finite gradients on the GPU) and is reported as [`TrainError::NonFinite`];
+//! * A step whose loss or gradients are not finite changes no parameter (the loss is
+//!   read back before the backward pass; Adam skips non-finite gradients on the GPU)
+//!   and is reported as [`TrainError::NonFinite`];
 //!   the caller stops and keeps the last good checkpoint.
 //! * Runs are deterministic given the config (seeded pixel choice, jitter, grid
 //!   cells), up to the order of float atomic adds on the GPU.
@@ -208,6 +209,14 @@ impl Trainer {
             false,
         )?;
         enc.submit();
+        // The loss is checked before anything touches the parameters: a non-finite
+        // loss need not give non-finite gradients (activations can flush NaN), so
+        // Adam's own skip of non-finite gradients is not enough on its own.
+        let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
+        if !mse.is_finite() {
+            self.step += 1;
+            return Err(TrainError::NonFinite { step, what: "the photometric loss".into() });
+        }
         self.model.field.zero_grads(&gpu);
         self.model.field.backward(&gpu, &bufs.batch, &self.field_grads, false)?;
 
@@ -220,13 +229,9 @@ impl Trainer {
         self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
         enc.submit();
 
-        let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
         let grad = self.grad_norm.read(&gpu)?;
         let counts = bufs.batch.count.read(&gpu)?;
         self.step += 1;
-        if !mse.is_finite() {
-            return Err(TrainError::NonFinite { step, what: "the photometric loss".into() });
-        }
         if !grad.all_finite() {
             return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }

@@ -79,6 +79,8 @@ fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// Real spherical harmonics of degree 4 (16 terms) of a direction (normalised here).
+/// Constants as printed by tiny-cuda-nn.
+#[allow(clippy::excessive_precision)]
 pub fn sh4(dir: [f64; 3]) -> [f64; 16] {
     let len = dot3(dir, dir).sqrt();
     let [x, y, z] = if len > 0.0 { dir.map(|c| c / len) } else { [0.0, 0.0, 1.0] };
@@ -315,18 +317,17 @@ impl GridModel {
             let s1 = self.act_d1(h0);
             dv = du.map(|c| c * s1);
             dh0 += self.act_d2(h0) * dot3(t.v, du);
-            for (k, j) in t.enc.jac.iter().enumerate() {
-                dg[k] = dot3(*j, dv);
+            for (g, j) in dg.iter_mut().zip(&t.enc.jac) {
+                *g = dot3(*j, dv);
             }
             // dW1 += (m * W2[0,:]) (x) dg;  dW2[0,j] += m_j (W1 dg)_j
             let w1dg = self.mat_vec(lay.w1, w, lay.in_pad, &dg);
-            for j in 0..w {
-                if t.a1[j] > 0.0 {
+            for (j, (a, w1dg_j)) in t.a1.iter().zip(&w1dg).enumerate() {
+                if *a > 0.0 {
                     let w20 = self.mlp[lay.w2 + j];
-                    for k in 0..lay.in_pad {
-                        grads.mlp[lay.w1 + j * lay.in_pad + k] += w20 * dg[k];
-                    }
-                    grads.mlp[lay.w2 + j] += w1dg[j];
+                    let row = lay.w1 + j * lay.in_pad;
+                    grads.mlp[row..row + lay.in_pad].iter_mut().zip(&dg).for_each(|(gw, d)| *gw += w20 * d);
+                    grads.mlp[lay.w2 + j] += w1dg_j;
                 }
             }
         }

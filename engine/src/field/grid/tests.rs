@@ -4,6 +4,8 @@
 //! Small configurations throughout (5 levels mixing dense and hashed indexing, an
 //! encoding width that needs padding, default MLP widths) so each test runs in seconds.
 
+#![allow(clippy::needless_range_loop)]
+
 use glam::Vec3;
 
 use super::reference::{GridModel, Trace};
@@ -143,7 +145,7 @@ fn assert_close(what: &str, got: &[f64], want: &[f64], rel_of_max: f64, rtol: f6
     let mut worst = (0.0, 0usize);
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
         let err = (g - w).abs() / (atol + rtol * w.abs());
-        if !(err <= worst.0) {
+        if err.is_nan() || err > worst.0 {
             worst = (err, i);
         }
     }
@@ -215,6 +217,8 @@ fn field_grid_layout_follows_instant_ngp() {
     let kinds: Vec<bool> = small.levels.iter().map(|l| l.dense_res > 0).collect();
     assert_eq!(kinds, [true, true, false, false, false]);
     assert_eq!((small.in_dim, small.in_pad), (10, 12));
+    let largest = GridLayout::new(&GridConfig { n_levels: MAX_LEVELS, hidden_width: MAX_WIDTH, ..cfg.clone() }).unwrap();
+    assert_eq!(largest.mlp_len, MAX_WEIGHT_FLOATS, "the kernels' uniform weight block fits the largest MLPs exactly");
     assert!(GridLayout::new(&GridConfig { hidden_width: 30, ..cfg.clone() }).is_err());
     assert!(GridLayout::new(&GridConfig { features_per_level: 4, ..cfg.clone() }).is_err());
     assert!(GridLayout::new(&GridConfig { n_levels: 33, ..cfg }).is_err());
@@ -624,6 +628,8 @@ fn field_grid_export_import_roundtrip_and_param_groups() {
     assert_eq!((groups[1].name, groups[1].params.len()), (MLP_NAME, lay.mlp_len));
     assert!(groups.iter().all(|g| g.grads.len() == g.params.len()));
     assert_eq!(field.n_params(), lay.table_entries * 2 + lay.mlp_len);
+    let as_dyn: &dyn Field = &field;
+    assert_eq!((as_dyn.kind(), as_dyn.encoding_levels()), ("grid", 5));
     assert!(GridField::new(&gpu, &cfg, [Vec3::ONE, Vec3::ZERO]).is_err());
 }
 
