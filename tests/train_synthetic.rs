@@ -64,6 +64,11 @@ fn training_raises_test_psnr_well_above_untrained() {
     }
     let stats = last.unwrap();
     let (after, renders) = trainer.evaluate().unwrap();
+    // Geometry is compared with the ground truth of the synthetic scene.
+    let depth_err = after.mean_depth_abs_error.expect("smooth has GT depth");
+    let normal_err = after.mean_normal_angle_deg.expect("smooth has GT normals");
+    eprintln!("mean depth error {depth_err:.3}, mean normal angle {normal_err:.1} deg");
+    assert!(depth_err < before.mean_depth_abs_error.unwrap(), "depth improves with training");
     eprintln!(
         "untrained {:.2} dB -> trained {:.2} dB after {} steps ({:.1} samples/ray, last batch PSNR {:.2})",
         before.mean_psnr, after.mean_psnr, stats.step + 1, stats.samples_per_ray, stats.psnr

@@ -124,6 +124,9 @@ pub struct SamplerConfig {
     pub brick_size: u32,
     /// Marching step as a length in the field's space; 0: AABB diagonal / 1024.
     pub step_size: f32,
+    /// When `step_size` is 0 the step is the AABB diagonal divided by this
+    /// (Instant-NGP: 1024); lower it for low-resolution images.
+    pub steps_per_diagonal: f32,
     /// Samples kept per ray (the nearest).
     pub max_samples_per_ray: u32,
     /// Occupied intervals kept per ray.
@@ -141,13 +144,14 @@ impl Default for SamplerConfig {
             warmup_steps: 256,
             brick_size: 8,
             step_size: 0.0,
+            steps_per_diagonal: DEFAULT_STEPS_PER_DIAGONAL,
             max_samples_per_ray: 1024,
             max_intervals: 16,
         }
     }
 }
 
-/// Steps per AABB diagonal when [`SamplerConfig::step_size`] is 0 (Instant-NGP).
+/// Default of [`SamplerConfig::steps_per_diagonal`] (Instant-NGP).
 pub const DEFAULT_STEPS_PER_DIAGONAL: f32 = 1024.0;
 
 impl SamplerConfig {
@@ -178,6 +182,9 @@ impl SamplerConfig {
         if !(self.step_size >= 0.0 && self.step_size.is_finite()) {
             return fail(format!("step_size {} must be finite and >= 0", self.step_size));
         }
+        if !(self.steps_per_diagonal >= 1.0 && self.steps_per_diagonal.is_finite()) {
+            return fail(format!("steps_per_diagonal {} must be finite and >= 1", self.steps_per_diagonal));
+        }
         if self.max_samples_per_ray == 0 {
             return fail("max_samples_per_ray must be at least 1".into());
         }
@@ -187,9 +194,9 @@ impl SamplerConfig {
         Ok(())
     }
 
-    /// The marching step for a scene box: `step_size`, or the diagonal / 1024.
+    /// The marching step for a scene box: `step_size`, or the diagonal / `steps_per_diagonal`.
     pub fn step_for(&self, aabb: [glam::Vec3; 2]) -> f32 {
-        if self.step_size > 0.0 { self.step_size } else { (aabb[1] - aabb[0]).length() / DEFAULT_STEPS_PER_DIAGONAL }
+        if self.step_size > 0.0 { self.step_size } else { (aabb[1] - aabb[0]).length() / self.steps_per_diagonal }
     }
 
     /// The density threshold for a scene box: `threshold / step` (see [`SamplerConfig::threshold`]).

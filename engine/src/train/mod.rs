@@ -97,10 +97,63 @@ pub struct StepStats {
 /// Test-view evaluation.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Evaluation {
-    /// `(view index, PSNR)` per test view.
-    pub per_view: Vec<(usize, f32)>,
+    pub per_view: Vec<ViewEvaluation>,
     /// Mean of the per-view PSNRs (the convention of NeRF papers).
     pub mean_psnr: f32,
+    /// Means over the views that have ground truth (see [`ViewEvaluation`]).
+    pub mean_depth_abs_error: Option<f32>,
+    pub mean_normal_angle_deg: Option<f32>,
+}
+
+/// One rendered test view against its image and, where the scene has them, its
+/// ground-truth depth and normals.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ViewEvaluation {
+    pub view: usize,
+    pub psnr: f32,
+    /// Mean |rendered ray distance - GT ray distance| over pixels with GT depth (world
+    /// units; world-space scenes only).
+    pub depth_abs_error: Option<f32>,
+    /// Mean angle in degrees between the renormalised rendered normal and the GT
+    /// normal, over pixels with a GT normal.
+    pub normal_angle_deg: Option<f32>,
+}
+
+fn mean_of(values: impl Iterator<Item = Option<f32>>) -> Option<f32> {
+    let v: Vec<f32> = values.flatten().collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f32>() / v.len() as f32)
+}
+
+/// Compares a rendered view with the image and ground truth of `scene.views[v]`.
+pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> ViewEvaluation {
+    let view = &scene.views[v];
+    let img = &view.image.data;
+    let mut se = 0.0f64;
+    for (p, px) in r.rgb.iter().enumerate() {
+        for c in 0..3 {
+            se += ((px[c] - img[3 * p + c]) as f64).powi(2);
+        }
+    }
+    let mse = se / (3 * r.rgb.len()).max(1) as f64;
+    let depth_abs_error = view.depth.as_ref().filter(|_| scene.ndc.is_none()).and_then(|gt| {
+        let errs: Vec<f64> =
+            gt.iter().zip(&r.depth).filter(|(g, _)| **g > 0.0).map(|(g, d)| (*d - *g).abs() as f64).collect();
+        (!errs.is_empty()).then(|| (errs.iter().sum::<f64>() / errs.len() as f64) as f32)
+    });
+    let normal_angle_deg = view.normal.as_ref().and_then(|gt| {
+        let unit = r.unit_normals();
+        let angles: Vec<f64> = gt
+            .iter()
+            .zip(&unit)
+            .filter(|(g, _)| g.iter().any(|&c| c != 0.0))
+            .map(|(g, n)| {
+                let dot = (g[0] * n[0] + g[1] * n[1] + g[2] * n[2]).clamp(-1.0, 1.0);
+                (dot as f64).acos().to_degrees()
+            })
+            .collect();
+        (!angles.is_empty()).then(|| (angles.iter().sum::<f64>() / angles.len() as f64) as f32)
+    });
+    ViewEvaluation { view: v, psnr: psnr(mse as f32), depth_abs_error, normal_angle_deg }
 }
 
 /// The optimisation loop of one run.
@@ -265,23 +318,24 @@ impl Trainer {
     }
 }
 
-/// Renders the test views of `scene` with `model` and measures PSNR per view.
+/// Renders the test views of `scene` with `model` and measures each against its image
+/// and ground truth.
 pub fn evaluate(gpu: &Gpu, model: &mut Model, scene: &Scene) -> Result<(Evaluation, Vec<(usize, RenderedView)>), TrainError> {
     let mut per_view = Vec::new();
     let mut renders = Vec::new();
     for &v in &scene.split.test {
         let r = model.render_view(gpu, scene, v)?;
-        let img = &scene.views[v].image.data;
-        let mut se = 0.0f64;
-        for (p, px) in r.rgb.iter().enumerate() {
-            for c in 0..3 {
-                se += ((px[c] - img[3 * p + c]) as f64).powi(2);
-            }
-        }
-        let mse = se / (3 * r.rgb.len()).max(1) as f64;
-        per_view.push((v, psnr(mse as f32)));
+        per_view.push(evaluate_view(scene, v, &r));
         renders.push((v, r));
     }
-    let mean_psnr = if per_view.is_empty() { 0.0 } else { per_view.iter().map(|p| p.1).sum::<f32>() / per_view.len() as f32 };
-    Ok((Evaluation { per_view, mean_psnr }, renders))
+    let mean_psnr = mean_of(per_view.iter().map(|e| Some(e.psnr))).unwrap_or(0.0);
+    Ok((
+        Evaluation {
+            mean_psnr,
+            mean_depth_abs_error: mean_of(per_view.iter().map(|e| e.depth_abs_error)),
+            mean_normal_angle_deg: mean_of(per_view.iter().map(|e| e.normal_angle_deg)),
+            per_view,
+        },
+        renders,
+    ))
 }

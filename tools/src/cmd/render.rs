@@ -66,10 +66,24 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
     for (v, r) in &renders {
         crate::output::write_view(dir, &trainer.scene.views[*v].name, r)?;
     }
-    for (v, p) in &eval.per_view {
-        println!("test view {v:>3} ({}): PSNR {p:.2} dB", trainer.scene.views[*v].name);
+    let fmt = |x: Option<f32>, unit: &str| x.map_or("-".to_string(), |x| format!("{x:.3}{unit}"));
+    for e in &eval.per_view {
+        println!(
+            "test view {:>3} ({}): PSNR {:.2} dB  depth error {}  normal error {}",
+            e.view,
+            trainer.scene.views[e.view].name,
+            e.psnr,
+            fmt(e.depth_abs_error, ""),
+            fmt(e.normal_angle_deg, " deg")
+        );
     }
-    println!("test PSNR {:.2} dB (mean over {} views)", eval.mean_psnr, eval.per_view.len());
+    println!(
+        "test PSNR {:.2} dB (mean over {} views); mean depth error {}; mean normal error {}",
+        eval.mean_psnr,
+        eval.per_view.len(),
+        fmt(eval.mean_depth_abs_error, ""),
+        fmt(eval.mean_normal_angle_deg, " deg")
+    );
     std::fs::write(dir.join("metrics.json"), serde_json::to_string_pretty(&eval)?)?;
     Ok(())
 }
