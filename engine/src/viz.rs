@@ -8,13 +8,25 @@
 
 use crate::data::ImageRgb;
 
-/// Turbo colour map (Google's polynomial approximation), `t` in `[0, 1]`.
+/// Keypoints of the depth colour map: a piecewise-linear approximation of Google's
+/// Turbo (dark blue, blue, cyan, green, yellow, orange, dark red), evenly spaced.
+const TURBO_KEYS: [[f32; 3]; 7] = [
+    [0.19, 0.07, 0.23],
+    [0.27, 0.45, 0.93],
+    [0.10, 0.85, 0.80],
+    [0.45, 0.99, 0.35],
+    [0.90, 0.85, 0.20],
+    [0.98, 0.45, 0.10],
+    [0.48, 0.02, 0.01],
+];
+
+/// The Turbo-like colour map at `t` in `[0, 1]` (clamped): near = blue, far = red.
 pub fn turbo(t: f32) -> [f32; 3] {
-    let t = t.clamp(0.0, 1.0) as f64;
-    let r = 0.13572138 + t * (4.61539260 + t * (-42.66032258 + t * (132.13108234 + t * (-152.94239396 + t * 59.28637943))));
-    let g = 0.09140261 + t * (2.19418839 + t * (4.84296658 + t * (-14.18503333 + t * (4.27729857 + t * 2.82956604))));
-    let b = 0.10667330 + t * (12.64194608 + t * (-60.58204836 + t * (110.36276771 + t * (-89.90310912 + t * 27.34824973))));
-    [r.clamp(0.0, 1.0) as f32, g.clamp(0.0, 1.0) as f32, b.clamp(0.0, 1.0) as f32]
+    let x = t.clamp(0.0, 1.0) * (TURBO_KEYS.len() - 1) as f32;
+    let i = (x.floor() as usize).min(TURBO_KEYS.len() - 2);
+    let f = x - i as f32;
+    let (a, b) = (TURBO_KEYS[i], TURBO_KEYS[i + 1]);
+    [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
 }
 
 /// The `q` quantile (0..1) of `values` (NaNs ignored); `None` if empty.
@@ -73,6 +85,10 @@ mod tests {
         let lo = turbo(0.0);
         let hi = turbo(1.0);
         assert!(lo[2] > lo[0] && hi[0] > hi[2]);
+        assert_eq!(turbo(-1.0), lo);
+        assert_eq!(turbo(0.5), TURBO_KEYS[3]);
+        let mid = turbo(0.25);
+        assert!(mid.iter().all(|c| (0.0..=1.0).contains(c)));
     }
 
     #[test]

@@ -119,21 +119,26 @@ impl RunConfig {
             serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
         let mut root = serde_json::to_value(&*self).map_err(|e| bad(e.to_string()))?;
         let mut node = &mut root;
+        // Inside an optional table that was unset, every key is new: serde's
+        // `deny_unknown_fields` judges them when the result is deserialized.
+        let mut fresh = false;
         let parts: Vec<&str> = key.split('.').collect();
         for (i, part) in parts.iter().enumerate() {
             let obj = node.as_object_mut().ok_or_else(|| bad(format!("{} is not a table", parts[..i].join("."))))?;
             if i + 1 == parts.len() {
-                if !obj.contains_key(*part) {
+                if !fresh && !obj.contains_key(*part) {
                     return Err(bad(format!("unknown key {key:?}")));
                 }
                 obj.insert(part.to_string(), value.clone());
                 break;
             }
+            if fresh {
+                obj.entry(part.to_string()).or_insert_with(|| serde_json::Value::Object(Default::default()));
+            }
             let next = obj.get_mut(*part).ok_or_else(|| bad(format!("unknown key {key:?}")))?;
             if next.is_null() {
-                // An unset optional table: start it from an empty object so its
-                // defaults apply to the keys not given.
                 *next = serde_json::Value::Object(Default::default());
+                fresh = true;
             }
             node = next;
         }
@@ -169,7 +174,9 @@ mod tests {
         c.set("scene.views=3").unwrap();
         assert_eq!((c.train.iters, c.field.n_levels, c.scene.views), (123, 8, Some(3)));
         c.set("train.level_anneal.steps=50").unwrap();
-        assert_eq!(c.train.level_anneal.as_ref().unwrap().steps, 50);
+        assert_eq!(c.train.level_anneal, Some(LevelAnneal { steps: 50, ..Default::default() }));
+        let mut d = RunConfig::default();
+        assert!(d.set("train.level_anneal.stpes=50").is_err(), "typos inside a fresh table are caught too");
         assert!(c.set("train.itres=1").is_err());
         assert!(c.set("train.iters=-1").is_err());
         assert!(c.set("noequals").is_err());
