@@ -1,0 +1,128 @@
+//! The `edgenerf` binary as a user runs it: `info` on real and synthetic scenes, a
+//! short `train` that writes its run directory, `render` of the checkpoint, and clear
+//! errors for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn edgenerf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_edgenerf"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("run edgenerf")
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// The real data directory, or `None` (with a message) when absent and not required.
+fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("EDGENERF_DATA").map(PathBuf::from).unwrap_or_else(|| repo().join("../shared/data"));
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    assert!(std::env::var("EDGENERF_REQUIRE_DATA").as_deref() != Ok("1"), "real data required but {} is absent", dir.display());
+    eprintln!("skipping: real data not found at {} (set EDGENERF_DATA)", dir.display());
+    None
+}
+
+#[test]
+fn info_prints_the_llff_split_and_the_adapter() {
+    let Some(data) = data_dir() else { return };
+    let o = edgenerf(&["info", data.join("llff/fern").to_str().unwrap(), "--views", "3"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("llff"), "{t}");
+    assert!(t.contains("20 of 504x378"), "{t}");
+    assert!(t.contains("train ids   [1, 10, 19]"), "{t}");
+    assert!(t.contains("test ids    [0, 8, 16]"), "{t}");
+    assert!(t.contains("adapter"), "{t}");
+}
+
+#[test]
+fn info_prints_dtu_masks_and_split() {
+    let Some(data) = data_dir() else { return };
+    let o = edgenerf(&["info", data.join("dtu/scan24").to_str().unwrap(), "--views", "3", "--no-gpu"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("49 of 400x300"), "{t}");
+    assert!(t.contains("train ids   [25, 22, 28]"), "{t}");
+    assert!(t.contains("masks: yes"), "{t}");
+}
+
+#[test]
+fn bad_input_gives_a_clear_error_and_a_failure_status() {
+    let o = edgenerf(&["info", "/definitely/not/here", "--no-gpu"]);
+    assert!(!o.status.success());
+    let t = text(&o);
+    assert!(t.contains("/definitely/not/here") && t.contains("not found"), "{t}");
+    assert!(!t.contains("stack backtrace"), "users see the message, not a backtrace: {t}");
+
+    let o = edgenerf(&["--adapter", "no-such-gpu", "info", repo().join("synthetic-scenes/small/creases").to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("adapters present"), "{}", text(&o));
+
+    let out = tempfile::tempdir().unwrap();
+    let o = edgenerf(&[
+        "train",
+        repo().join("synthetic-scenes/small/creases").to_str().unwrap(),
+        "--out",
+        out.path().to_str().unwrap(),
+        "--set",
+        "train.itres=5",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("unknown key"), "{}", text(&o));
+}
+
+#[test]
+fn train_writes_its_run_directory_and_render_reads_it_back() {
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    let scene = repo().join("synthetic-scenes/small/turntable");
+    let o = edgenerf(&[
+        "train",
+        scene.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--config",
+        repo().join("tools/configs/demo.toml").to_str().unwrap(),
+        "--iters",
+        "4",
+        "--set",
+        "train.checkpoint_every=2",
+        // An untrained grid is occupied everywhere: march coarsely to keep renders short.
+        "--set",
+        "sampler.steps_per_diagonal=48",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("test PSNR"), "{t}");
+    for f in ["config.json", "log.csv", "checkpoint.safetensors", "test/metrics.json", "test/r_000_rgb.png", "test/r_000_depth.exr", "test/r_000_depth.png", "test/r_000_normal.exr", "test/r_000_normal.png", "test/r_000_opacity.png"] {
+        assert!(run.join(f).is_file(), "{f} missing; output:\n{t}");
+    }
+    let log = std::fs::read_to_string(run.join("log.csv")).unwrap();
+    assert_eq!(log.lines().count(), 1 + 4, "header and one row per step:\n{log}");
+    let config: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["train"]["iters"], 4);
+    assert_eq!(config["field"]["n_levels"], 8, "the config file's values are in the effective config");
+
+    // Resume extends the run from its checkpoint.
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--resume", "--iters", "6", "--no-eval"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let log = std::fs::read_to_string(run.join("log.csv")).unwrap();
+    assert_eq!(log.lines().count(), 1 + 6, "{log}");
+
+    let renders = out.path().join("renders");
+    let o = edgenerf(&["render", run.to_str().unwrap(), "--split", "test", "--out", renders.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("test PSNR"), "{}", text(&o));
+    let n = std::fs::read_dir(&renders).unwrap().filter(|e| e.as_ref().unwrap().path().to_string_lossy().ends_with("_rgb.png")).count();
+    assert_eq!(n, 8, "one render per test view");
+}
