@@ -164,7 +164,8 @@ impl Loader<'_> {
             path,
             camera,
             image: img.image,
-            mask: img.alpha,
+            mask: img.alpha.clone(),
+            alpha: img.alpha,
             depth: None,
             normal: None,
         };

@@ -255,6 +255,7 @@ pub(super) fn load(
             camera,
             image: img.image,
             mask,
+            alpha: img.alpha,
             depth: None,
             normal: None,
         });

@@ -191,6 +191,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             camera,
             image: img.image,
             mask: None,
+            alpha: img.alpha,
             depth: None,
             normal: None,
         });

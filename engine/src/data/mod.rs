@@ -108,6 +108,10 @@ pub struct View {
     pub image: ImageRgb,
     /// Object / valid mask in `[0, 1]`, one value per pixel (DTU masks, synthetic GT).
     pub mask: Option<Vec<f32>>,
+    /// The image file's own alpha (RGBA files), one value per pixel: `image` is the
+    /// file composited over the load background with it. Training uses it to
+    /// re-composite targets over random backgrounds.
+    pub alpha: Option<Vec<f32>>,
     /// Ground-truth ray distance per pixel (0 = no surface).
     pub depth: Option<Vec<f32>>,
     /// Ground-truth world-space unit normal per pixel, toward the camera.

@@ -61,6 +61,11 @@ pub struct TrainConfig {
     pub checkpoint_every: u64,
     /// Coarse-to-fine level annealing; `None`: all levels from the start.
     pub level_anneal: Option<LevelAnneal>,
+    /// For images with alpha: composite each training pixel over a random colour
+    /// (the renderer uses the same colour), so transparency must be explained by
+    /// opacity rather than by a colour that matches the background (Instant-NGP).
+    /// Evaluation always uses the scene's background.
+    pub random_background: bool,
 }
 
 impl Default for TrainConfig {
@@ -72,6 +77,7 @@ impl Default for TrainConfig {
             seed: 0,
             checkpoint_every: 1000,
             level_anneal: None,
+            random_background: true,
         }
     }
 }

@@ -33,7 +33,7 @@ use crate::field::FieldError;
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 use crate::loss::{Photometric, photometric::psnr};
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
-use crate::render::RenderError;
+use crate::render::{Background, RenderConfig, RenderError, Renderer, random_background};
 use crate::sampler::SamplerError;
 use crate::samples::{FieldGrads, RayOutput};
 
@@ -111,8 +111,9 @@ pub struct Evaluation {
 pub struct ViewEvaluation {
     pub view: usize,
     pub psnr: f32,
-    /// Mean |rendered ray distance - GT ray distance| over pixels with GT depth (world
-    /// units; world-space scenes only).
+    /// Mean |rendered - GT ray distance| over pixels with GT depth (world units;
+    /// world-space scenes only). The rendered distance is
+    /// [`RenderedView::terminated_depth`], the expected distance given termination.
     pub depth_abs_error: Option<f32>,
     /// Mean angle in degrees between the renormalised rendered normal and the GT
     /// normal, over pixels with a GT normal.
@@ -137,7 +138,7 @@ pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> ViewEvaluatio
     let mse = se / (3 * r.rgb.len()).max(1) as f64;
     let depth_abs_error = view.depth.as_ref().filter(|_| scene.ndc.is_none()).and_then(|gt| {
         let errs: Vec<f64> =
-            gt.iter().zip(&r.depth).filter(|(g, _)| **g > 0.0).map(|(g, d)| (*d - *g).abs() as f64).collect();
+            gt.iter().zip(&r.terminated_depth(scene.far)).filter(|(g, _)| **g > 0.0).map(|(g, d)| (*d - *g).abs() as f64).collect();
         (!errs.is_empty()).then(|| (errs.iter().sum::<f64>() / errs.len() as f64) as f32)
     });
     let normal_angle_deg = view.normal.as_ref().and_then(|gt| {
@@ -165,6 +166,9 @@ pub struct Trainer {
     grad_norm: GradNorm,
     photometric: Photometric,
     bufs: BatchBuffers,
+    /// Renders training batches over random backgrounds (images with alpha and
+    /// `train.random_background`); `None`: the model's own renderer.
+    random_bg_renderer: Option<Renderer>,
     targets: GpuBuffer<[f32; 4]>,
     d_rays: GpuBuffer<RayOutput>,
     field_grads: FieldGrads,
@@ -182,7 +186,12 @@ impl Trainer {
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
         let n = config.train.rays_per_batch;
         let capacity = config.train.max_samples;
+        let has_alpha = scene.train_views().any(|v| v.alpha.is_some());
+        let random_bg_renderer = (config.train.random_background && has_alpha)
+            .then(|| Renderer::new(&gpu, RenderConfig { background: Background::Random, ..*model.renderer.config() }))
+            .transpose()?;
         Ok(Trainer {
+            random_bg_renderer,
             grad_norm: GradNorm::new(&gpu)?,
             photometric: Photometric::new(&gpu, n)?,
             bufs: BatchBuffers::new(&gpu, n, capacity)?,
@@ -242,17 +251,23 @@ impl Trainer {
         let update = self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
 
         let n = self.config().train.rays_per_batch;
-        let batch = rays::random_pixels(&self.scene, n, seed, step);
+        let mut batch = rays::random_pixels(&self.scene, n, seed, step);
+        let bg_seed = step as u32;
+        if self.random_bg_renderer.is_some() {
+            let loaded_over = self.scene.background.unwrap_or([1.0; 3]);
+            batch.recomposite(loaded_over, |ray| random_background(bg_seed, ray));
+        }
         self.bufs.rays.write(&gpu, &batch.rays);
         self.targets.write(&gpu, &batch.targets);
         let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
         self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), false)?;
 
         let bufs = &self.bufs;
+        let renderer = self.random_bg_renderer.as_ref().unwrap_or(&self.model.renderer);
         let mut enc = gpu.encoder();
-        self.model.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, step as u32)?;
+        renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, bg_seed)?;
         self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n, n as f32, 1.0);
-        self.model.renderer.backward(
+        renderer.backward(
             &mut enc,
             &bufs.batch,
             &bufs.field_out,

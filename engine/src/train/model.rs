@@ -37,6 +37,13 @@ pub struct RenderedView {
 }
 
 impl RenderedView {
+    /// Expected ray distance given that the ray terminates, `depth / opacity` (the
+    /// scene's far distance where the opacity is below 1e-3): what depth maps show and
+    /// what is compared with ground truth, unbiased by partial opacity.
+    pub fn terminated_depth(&self, far: f32) -> Vec<f32> {
+        self.depth.iter().zip(&self.opacity).map(|(&d, &a)| if a > 1e-3 { d / a } else { far }).collect()
+    }
+
     /// Normals renormalised to unit length (zero where the rendered normal vanishes).
     pub fn unit_normals(&self) -> Vec<[f32; 3]> {
         self.normal

@@ -74,6 +74,24 @@ pub struct PixelBatch {
     pub rays: Vec<GpuRay>,
     /// Target colour and weight (1).
     pub targets: Vec<[f32; 4]>,
+    /// The pixel's alpha where its image has one.
+    pub alpha: Vec<Option<f32>>,
+}
+
+impl PixelBatch {
+    /// Re-composites the targets of pixels with alpha over `background(ray)` instead of
+    /// `loaded_over`, the colour the images were composited over when loaded:
+    /// `c' = c + (bg - loaded_over) (1 - alpha)`.
+    pub fn recomposite(&mut self, loaded_over: [f32; 3], background: impl Fn(u32) -> [f32; 3]) {
+        for (i, (t, a)) in self.targets.iter_mut().zip(&self.alpha).enumerate() {
+            if let Some(a) = a {
+                let bg = background(i as u32);
+                for c in 0..3 {
+                    t[c] += (bg[c] - loaded_over[c]) * (1.0 - a);
+                }
+            }
+        }
+    }
 }
 
 /// Draws `n` training pixels for `step` (a pure function of `seed` and `step`).
@@ -83,6 +101,7 @@ pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch 
     let (w, h) = scene.image_size();
     let mut rays = Vec::with_capacity(n as usize);
     let mut targets = Vec::with_capacity(n as usize);
+    let mut alpha = Vec::with_capacity(n as usize);
     for _ in 0..n {
         let view = train[rng.below(train.len() as u64) as usize];
         let x = rng.below(w as u64) as u32;
@@ -90,8 +109,9 @@ pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch 
         rays.push(to_gpu_ray(scene, &scene.ray(view, x, y)));
         let px = scene.views[view].image.get(x, y);
         targets.push([px[0], px[1], px[2], 1.0]);
+        alpha.push(scene.views[view].alpha.as_ref().map(|a| a[(y * w + x) as usize]));
     }
-    PixelBatch { rays, targets }
+    PixelBatch { rays, targets, alpha }
 }
 
 #[cfg(test)]
@@ -106,6 +126,23 @@ mod tests {
         assert!(ray_aabb(Vec3::new(0.0, 3.0, -3.0), Vec3::Z, aabb).is_none());
         let (a, _) = ray_aabb(Vec3::ZERO, Vec3::X, aabb).unwrap();
         assert_eq!(a, 0.0, "origin inside: starts at 0");
+    }
+
+    #[test]
+    fn recompositing_swaps_the_background_behind_alpha() {
+        let mut b = PixelBatch {
+            rays: vec![GpuRay::default(); 3],
+            // Composited over white: 0.25 * fg + 0.75 * 1 with fg = 0.2 -> 0.8.
+            targets: vec![[0.8, 0.8, 0.8, 1.0], [0.3, 0.4, 0.5, 1.0], [0.9, 0.9, 0.9, 1.0]],
+            alpha: vec![Some(0.25), None, Some(1.0)],
+        };
+        b.recomposite([1.0; 3], |_| [0.0, 0.5, 1.0]);
+        let want = [0.25 * 0.2 + 0.75 * 0.0, 0.25 * 0.2 + 0.75 * 0.5, 0.25 * 0.2 + 0.75 * 1.0];
+        for c in 0..3 {
+            assert!((b.targets[0][c] - want[c]).abs() < 1e-6);
+        }
+        assert_eq!(b.targets[1], [0.3, 0.4, 0.5, 1.0], "no alpha: untouched");
+        assert_eq!(b.targets[2], [0.9, 0.9, 0.9, 1.0], "opaque: untouched");
     }
 
     #[test]
