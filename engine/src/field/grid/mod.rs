@@ -95,7 +95,7 @@
 
 pub mod reference;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;

@@ -14,10 +14,10 @@ use crate::field::Field;
 use crate::gpu::{test_gpu, Gpu};
 use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
 
-const AABB: [Vec3; 2] = [Vec3::new(-1.0, -0.5, -2.0), Vec3::new(1.5, 1.0, 0.5)];
+pub(crate) const AABB: [Vec3; 2] = [Vec3::new(-1.0, -0.5, -2.0), Vec3::new(1.5, 1.0, 0.5)];
 
 /// 5 levels (2 dense, 3 hashed), in_dim 10 padded to 12.
-fn small_config() -> GridConfig {
+pub(crate) fn small_config() -> GridConfig {
     GridConfig {
         n_levels: 5,
         log2_hashmap_size: 11,
@@ -54,7 +54,7 @@ fn random_samples(n: usize, seed: u64) -> Vec<GpuSample> {
 
 /// Replaces the field's parameters with values large enough to exercise every
 /// nonlinearity (features uniform in [-1, 1], Xavier-like MLP weights).
-fn randomize(gpu: &Gpu, field: &mut GridField, seed: u64) {
+pub(crate) fn randomize(gpu: &Gpu, field: &mut GridField, seed: u64) {
     let mut r = rng(seed);
     let mut arrays = field.export(gpu).unwrap();
     for a in &mut arrays {

@@ -1,0 +1,255 @@
+//! The edge-guided depth and normal regularizers of EdgeNeRF (paper, section 3), on
+//! batches of 2x2 patches: owner of `kernels/loss/edge_reg.wgsl` and its CPU
+//! reference ([`reference`]).
+//!
+//! # The losses
+//! A batch of `M` patches is `4 M` rays; rays `4m .. 4m+3` are patch `m`, in the order
+//! `(x, y), (x+1, y), (x, y+1), (x+1, y+1)` (the order does not matter to the losses).
+//! Per ray the caller gives `e` (1 on non-edge pixels, 0 on edge pixels, the paper's
+//! convention after the 3x3 dilation of edges) and `z_scale`. The regularized depth
+//! is `z = depth * z_scale`, where `depth = sum_i w_i t_i` is the renderer's expected
+//! ray parameter (not divided by opacity, as the paper's integral):
+//! * world-space scenes: `z_scale = <dir, camera axis>`, so `z` is the expected depth
+//!   along the camera axis. The authors' mip-NeRF rays have un-normalised directions
+//!   with unit z, so their `t` is this z-depth; a plane facing the camera then has the
+//!   same `z` at the four pixels of a patch, while ray distances would differ;
+//! * NDC scenes (LLFF): `z_scale = 1`; `t` is the NDC parameter in `[0, 1]`, the
+//!   space the paper (and its code) regularizes for forward-facing scenes.
+//!
+//! The rendered normal is `n = sum_i w_i n_i` (not renormalised, as the authors), in
+//! the field's space (NDC for LLFF). With `S = sum e_i`, `zbar = sum e_i z_i / S`,
+//! `nbar = sum e_i n_i / S` per patch:
+//!
+//! ```text
+//! paper:    L_z = 1/M sum_m sum_i max(e_i |z_i - zbar| - tau1, 0)
+//!           L_n = 1/M sum_m sum_i max(e_i |n_i - nbar|^2 - tau2, 0)
+//!           gradients flow through zbar and nbar
+//! official: L_z as above with zbar a constant (stop-gradient)
+//!           L_n = 1/(12 M) sum_m sum_i e_i |n_i - nbar|^2, nbar a constant, no hinge
+//! ```
+//! The paper writes both losses as sums over patches and pixels next to a photometric
+//! sum over rays; we divide every term by the batch size (`L_c` is the mean over rays
+//! and channels, these by the patch count), which keeps the paper's balance between
+//! `lambda2` and `lambda3` and matches the authors' `L_z` normalisation exactly. The
+//! official `L_n` is the authors' `mean(e * (n - nbar)^2)` over all `4 M` pixels and
+//! 3 components. A patch whose four pixels are all edge (`S = 0`) contributes nothing
+//! (the authors' 0/0 guard).
+//!
+//! # Gradients (added to `dL/d RayOutput`)
+//! With `g_i = e_i sign(z_i - zbar)` where the hinge is active (else 0) and
+//! `G_i = 2 e_i (n_i - nbar)` where active (always, official):
+//! ```text
+//! paper:    dL_z/dz_j = (g_j - e_j/S sum_i g_i) / M
+//!           dL_n/dn_j = (G_j - e_j/S sum_i G_i) / M
+//! official: dL_z/dz_j = g_j / M,    dL_n/dn_j = G_j / (12 M)
+//! ```
+//! `d depth = lambda_z dL_z/dz * z_scale`, `d normal = lambda_n dL_n/dn`. The renderer's
+//! backward takes these through the weights (to density) and, for the normals, to the
+//! per-sample analytic normals, whose backward in the field is second order.
+//!
+//! Invariants: the kernel only *adds* to `d_rays` (the photometric loss writes first);
+//! it reads the forward outputs of the same batch; `n_rays = 4 * n_patches`.
+
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
+use crate::samples::RayOutput;
+
+const SPEC: KernelSpec = KernelSpec {
+    file: "loss/edge_reg.wgsl",
+    entry: "edge_reg",
+    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+};
+
+/// Which definition of the losses (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RegVariant {
+    /// The paper's equations: hinges on both losses, gradients through the means.
+    #[default]
+    Paper,
+    /// The authors' code: stop-gradient means, squared normal error without hinge
+    /// averaged over pixels and components, `lambda3 = 0.01`.
+    Official,
+}
+
+/// Weights and thresholds of one launch (the trainer applies the schedule).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EdgeRegWeights {
+    pub variant: RegVariant,
+    /// `lambda2` of `L_z` (0: off).
+    pub lambda_depth: f32,
+    /// `lambda3` of `L_n` (0: off).
+    pub lambda_normal: f32,
+    /// `tau1`, `tau2`.
+    pub tau_depth: f32,
+    pub tau_normal: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    n_patches: u32,
+    official: u32,
+    _pad: [u32; 2],
+    lambda_depth: f32,
+    lambda_normal: f32,
+    tau_depth: f32,
+    tau_normal: f32,
+}
+
+/// The unweighted loss values of one launch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct EdgeRegLosses {
+    pub depth: f32,
+    pub normal: f32,
+}
+
+/// The regularizer kernel, its per-ray inputs and per-patch losses.
+pub struct EdgeReg {
+    kernel: std::sync::Arc<crate::gpu::Kernel>,
+    /// Per ray `(e, z_scale)`, written by the caller.
+    pub pixel: GpuBuffer<[f32; 2]>,
+    /// Per patch `(L_z, L_n)` contributions of the last launch.
+    pub patch_loss: GpuBuffer<[f32; 2]>,
+}
+
+impl EdgeReg {
+    pub fn new(gpu: &Gpu, max_patches: u32) -> Result<Self, GpuError> {
+        let n = max_patches.max(1) as usize;
+        Ok(Self {
+            kernel: gpu.kernel(&SPEC)?,
+            pixel: GpuBuffer::zeros(gpu, "edge reg pixels", 4 * n)?,
+            patch_loss: GpuBuffer::zeros(gpu, "edge reg patch losses", n)?,
+        })
+    }
+
+    /// Records the losses of `n_patches` patches (`rays[..4 n_patches]`, with
+    /// [`EdgeReg::pixel`] filled), adding their gradients into `d_rays`.
+    pub fn record(
+        &self,
+        enc: &mut Encoder,
+        rays: &GpuBuffer<RayOutput>,
+        d_rays: &GpuBuffer<RayOutput>,
+        n_patches: u32,
+        w: &EdgeRegWeights,
+    ) {
+        let n_rays = 4 * n_patches as usize;
+        assert!(rays.len() >= n_rays && d_rays.len() >= n_rays && self.pixel.len() >= n_rays);
+        assert!(self.patch_loss.len() >= n_patches as usize, "edge reg buffers for {} patches", self.patch_loss.len());
+        let params = enc.uniform(&Params {
+            n_patches,
+            official: (w.variant == RegVariant::Official) as u32,
+            _pad: [0; 2],
+            lambda_depth: w.lambda_depth,
+            lambda_normal: w.lambda_normal,
+            tau_depth: w.tau_depth,
+            tau_normal: w.tau_normal,
+        });
+        enc.dispatch_threads(
+            &self.kernel,
+            &[&params, &rays.buffer, &self.pixel.buffer, &d_rays.buffer, &self.patch_loss.buffer],
+            n_patches,
+        );
+    }
+
+    /// `L_z` and `L_n` of the last launch over `n_patches` (waits for the GPU).
+    pub fn losses(&self, gpu: &Gpu, n_patches: u32) -> Result<EdgeRegLosses, GpuError> {
+        let per_patch = self.patch_loss.read(gpu)?;
+        let (mut d, mut n) = (0.0f64, 0.0f64);
+        for p in &per_patch[..n_patches as usize] {
+            d += p[0] as f64;
+            n += p[1] as f64;
+        }
+        Ok(EdgeRegLosses { depth: d as f32, normal: n as f32 })
+    }
+}
+
+/// `f64` CPU reference of the losses and their gradients (tests; documentation of the
+/// kernel in plain Rust).
+pub mod reference {
+    use super::RegVariant;
+
+    /// One ray of a patch as the losses see it.
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct PatchRay {
+        pub e: f64,
+        pub z_scale: f64,
+        pub depth: f64,
+        pub normal: [f64; 3],
+    }
+
+    /// Per patch `(zbar, nbar)` of `rays` (a multiple of 4); `None` for all-edge patches.
+    pub fn patch_means(rays: &[PatchRay]) -> Vec<Option<(f64, [f64; 3])>> {
+        rays.chunks(4)
+            .map(|patch| {
+                let s: f64 = patch.iter().map(|r| r.e).sum();
+                (s > 0.0).then(|| {
+                    let z_bar = patch.iter().map(|r| r.e * r.depth * r.z_scale).sum::<f64>() / s;
+                    let n_bar = [0, 1, 2].map(|c| patch.iter().map(|r| r.e * r.normal[c]).sum::<f64>() / s);
+                    (z_bar, n_bar)
+                })
+            })
+            .collect()
+    }
+
+    /// `(L_z, L_n)` of `rays` (a multiple of 4) and per ray `(dL_z/d depth, dL_n/d normal)`.
+    #[allow(clippy::type_complexity)]
+    pub fn losses(rays: &[PatchRay], variant: RegVariant, tau_depth: f64, tau_normal: f64) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
+        losses_given_means(rays, &patch_means(rays), variant, tau_depth, tau_normal)
+    }
+
+    /// [`losses`] with the patch means given: with the means of other rays held fixed,
+    /// finite differences of this reproduce the stop-gradient of the official variant.
+    #[allow(clippy::type_complexity)]
+    pub fn losses_given_means(
+        rays: &[PatchRay],
+        means: &[Option<(f64, [f64; 3])>],
+        variant: RegVariant,
+        tau_depth: f64,
+        tau_normal: f64,
+    ) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
+        assert_eq!(rays.len() % 4, 0);
+        let m = (rays.len() / 4) as f64;
+        let official = variant == RegVariant::Official;
+        let norm_n = if official { 1.0 / (12.0 * m) } else { 1.0 / m };
+        let (mut lz, mut ln) = (0.0, 0.0);
+        let mut grads = vec![(0.0, [0.0; 3]); rays.len()];
+        for (p, patch) in rays.chunks(4).enumerate() {
+            let Some((z_bar, n_bar)) = means[p] else { continue };
+            let s: f64 = patch.iter().map(|r| r.e).sum();
+            let z: Vec<f64> = patch.iter().map(|r| r.depth * r.z_scale).collect();
+            let mut g = [0.0; 4];
+            let mut gn = [[0.0; 3]; 4];
+            for (i, r) in patch.iter().enumerate() {
+                let hz = r.e * (z[i] - z_bar).abs() - tau_depth;
+                if hz > 0.0 {
+                    lz += hz;
+                    g[i] = r.e * (z[i] - z_bar).signum();
+                }
+                let dn: Vec<f64> = (0..3).map(|c| r.normal[c] - n_bar[c]).collect();
+                let sq = r.e * dn.iter().map(|d| d * d).sum::<f64>();
+                if official || sq - tau_normal > 0.0 {
+                    ln += if official { sq } else { sq - tau_normal };
+                    for c in 0..3 {
+                        gn[i][c] = 2.0 * r.e * dn[c];
+                    }
+                }
+            }
+            let g_sum: f64 = g.iter().sum();
+            let gn_sum: Vec<f64> = (0..3).map(|c| gn.iter().map(|v| v[c]).sum()).collect();
+            for (i, r) in patch.iter().enumerate() {
+                let (mut dz, mut dn) = (g[i], gn[i]);
+                if !official {
+                    dz -= r.e / s * g_sum;
+                    for c in 0..3 {
+                        dn[c] -= r.e / s * gn_sum[c];
+                    }
+                }
+                grads[4 * p + i] = (dz / m * r.z_scale, dn.map(|v| v * norm_n));
+            }
+        }
+        ((lz / m, ln * norm_n), grads)
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,240 @@
+//! Tests of the edge-guided regularizers: the kernel against the `f64` reference, the
+//! reference against central differences, and the whole chain (hash-grid field with
+//! analytic normals -> compositing -> L_z / L_n -> backward, second order through the
+//! normals) against central differences of the CPU pipeline.
+
+use glam::Vec3;
+
+use super::reference::{PatchRay, losses, losses_given_means, patch_means};
+use super::*;
+use crate::field::grid::tests::{AABB, randomize, small_config};
+use crate::field::grid::{SplitMix64, TABLE_NAME};
+use crate::field::{Field, GridField};
+use crate::gpu::test_gpu;
+use crate::render::{Background, RenderConfig, RenderOutputs, Renderer, reference as render_ref};
+use crate::samples::{FieldGrads, FieldOutputs, GpuSample, SampleBatch, SampleRange};
+
+fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
+    let mut r = SplitMix64::new(seed);
+    let mut rays: Vec<PatchRay> = (0..4 * n_patches)
+        .map(|i| PatchRay {
+            e: if (r.uniform(1.0) + 1.0) * 0.5 < 0.3 { 0.0 } else { 1.0 },
+            z_scale: 0.8 + 0.1 * (r.uniform(1.0) + 1.0),
+            depth: 2.0 + r.uniform(1.0) + 0.01 * i as f64,
+            normal: [r.uniform(1.0), r.uniform(1.0), r.uniform(1.0)],
+        })
+        .collect();
+    // One patch entirely on edges (0/0 guard) and one entirely non-edge.
+    for i in 0..4 {
+        rays[4 + i].e = 0.0;
+        rays[8 + i].e = 1.0;
+    }
+    rays
+}
+
+fn weights(variant: RegVariant, tau_depth: f32) -> EdgeRegWeights {
+    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0 }
+}
+
+#[test]
+fn edge_reg_kernel_matches_reference() {
+    let gpu = test_gpu(false);
+    let n_patches = 37usize;
+    let rays = random_patch_rays(n_patches, 3);
+    for (variant, tau) in [(RegVariant::Paper, 1e-4f32), (RegVariant::Official, 1e-4), (RegVariant::Paper, 0.3)] {
+        let w = weights(variant, tau);
+        let reg = EdgeReg::new(&gpu, n_patches as u32).unwrap();
+        reg.pixel.write(&gpu, &rays.iter().map(|r| [r.e as f32, r.z_scale as f32]).collect::<Vec<_>>());
+        let outs: Vec<RayOutput> = rays
+            .iter()
+            .map(|r| RayOutput { depth: r.depth as f32, normal: r.normal.map(|v| v as f32), ..Default::default() })
+            .collect();
+        let rays_buf = GpuBuffer::from_slice(&gpu, "rays", &outs).unwrap();
+        // Pre-filled gradients: the kernel adds.
+        let prior: Vec<RayOutput> =
+            (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, normal: [i as f32 * 0.01, 0.0, -1.0], opacity: 0.0 }).collect();
+        let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
+        let mut enc = gpu.encoder();
+        reg.record(&mut enc, &rays_buf, &d, n_patches as u32, &w);
+        enc.submit();
+        let got = reg.losses(&gpu, n_patches as u32).unwrap();
+        let ((lz, ln), grads) = losses(&rays, variant, tau as f64, 0.0);
+        assert!((got.depth as f64 - lz).abs() <= 1e-5 * lz.abs().max(1e-3), "{variant:?} L_z {} vs {lz}", got.depth);
+        assert!((got.normal as f64 - ln).abs() <= 1e-5 * ln.abs().max(1e-3), "{variant:?} L_n {} vs {ln}", got.normal);
+        let d = d.read(&gpu).unwrap();
+        for (i, ((gz, gn), p)) in grads.iter().zip(&prior).enumerate() {
+            let want_z = p.depth as f64 + w.lambda_depth as f64 * gz;
+            assert!((d[i].depth as f64 - want_z).abs() < 1e-5, "{variant:?} ray {i}: d depth {} vs {want_z}", d[i].depth);
+            for c in 0..3 {
+                let want = p.normal[c] as f64 + w.lambda_normal as f64 * gn[c];
+                assert!((d[i].normal[c] as f64 - want).abs() < 1e-5, "{variant:?} ray {i} d normal[{c}]");
+            }
+            assert_eq!(d[i].rgb, p.rgb, "colour gradients untouched");
+        }
+        // The all-edge patch has no loss and no gradient.
+        assert!((4..8).all(|i| d[i].depth == prior[i].depth));
+    }
+}
+
+#[test]
+fn edge_reg_reference_matches_finite_differences() {
+    let rays = random_patch_rays(9, 11);
+    for variant in [RegVariant::Paper, RegVariant::Official] {
+        // The official variant's means are constants of the backward pass: hold them.
+        let frozen = patch_means(&rays);
+        let total = |rays: &[PatchRay]| {
+            let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(rays) };
+            let ((lz, ln), _) = losses_given_means(rays, &means, variant, 1e-4, 0.0);
+            lz + 2.0 * ln
+        };
+        let (_, grads) = losses(&rays, variant, 1e-4, 0.0);
+        let h = 1e-6;
+        for i in 0..rays.len() {
+            let mut p = rays.clone();
+            p[i].depth += h;
+            let mut m = rays.clone();
+            m[i].depth -= h;
+            let fd = (total(&p) - total(&m)) / (2.0 * h);
+            assert!((fd - grads[i].0).abs() < 1e-6, "{variant:?} ray {i} depth: fd {fd} vs {}", grads[i].0);
+            for c in 0..3 {
+                let mut p = rays.clone();
+                p[i].normal[c] += h;
+                let mut m = rays.clone();
+                m[i].normal[c] -= h;
+                let fd = (total(&p) - total(&m)) / (2.0 * h);
+                assert!((fd - 2.0 * grads[i].1[c]).abs() < 1e-6, "{variant:?} ray {i} normal {c}: fd {fd} vs {}", 2.0 * grads[i].1[c]);
+            }
+        }
+        // Stop-gradient changes the answer (the paper variant's mean terms matter).
+        if variant == RegVariant::Official {
+            let (_, paper) = losses(&rays, RegVariant::Paper, 1e-4, 0.0);
+            assert!(grads.iter().zip(&paper).any(|(a, b)| (a.0 - b.0).abs() > 1e-3));
+        }
+    }
+}
+
+/// Rays of 8 samples each through the field's box, 4 per patch.
+fn patch_samples(n_patches: usize, seed: u64) -> (Vec<SampleRange>, Vec<GpuSample>) {
+    let mut r = SplitMix64::new(seed);
+    let per_ray = 8u32;
+    let mut ranges = Vec::new();
+    let mut samples = Vec::new();
+    for p in 0..n_patches {
+        let base = Vec3::new(0.3 * r.uniform(1.0) as f32, 0.25 + 0.2 * r.uniform(1.0) as f32, -1.2);
+        let dir0 = Vec3::new(0.2 * r.uniform(1.0) as f32, 0.1 * r.uniform(1.0) as f32, 1.0).normalize();
+        for i in 0..4 {
+            let offset = Vec3::new(0.02 * (i % 2) as f32, 0.02 * (i / 2) as f32, 0.0);
+            let dir = (dir0 + 0.5 * offset).normalize();
+            ranges.push(SampleRange { start: ((4 * p + i) as u32) * per_ray, count: per_ray });
+            for k in 0..per_ray {
+                let t = 0.1 + 0.15 * k as f32;
+                samples.push(GpuSample { pos: (base + offset + t * dir).to_array(), t, dir: dir.to_array(), dt: 0.15 });
+            }
+        }
+    }
+    (ranges, samples)
+}
+
+fn end_to_end(variant: RegVariant) {
+    let gpu = test_gpu(false);
+    let cfg = small_config();
+    let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
+    randomize(&gpu, &mut field, 5);
+    let n_patches = 4usize;
+    let n_rays = 4 * n_patches;
+    let (ranges, samples) = patch_samples(n_patches, 9);
+    let capacity = samples.len() as u32;
+    let batch = SampleBatch::new(&gpu, n_rays as u32, capacity).unwrap();
+    batch.ranges.write(&gpu, &ranges);
+    batch.samples.write(&gpu, &samples);
+    batch.count.write(&gpu, &[capacity, capacity]);
+    let pixel: Vec<[f32; 2]> = (0..n_rays).map(|i| [if i % 7 == 3 { 0.0 } else { 1.0 }, 0.9 + 0.01 * i as f32]).collect();
+    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0 };
+
+    // GPU: forward with normals, composite, losses, backward to the parameters.
+    let out = FieldOutputs::new(&gpu, capacity).unwrap();
+    field.forward(&gpu, &batch, &out, true).unwrap();
+    let renderer = Renderer::new(&gpu, RenderConfig { background: Background::Black, transmittance_threshold: 0.0 }).unwrap();
+    let render_out = RenderOutputs::new(&gpu, n_rays as u32, None).unwrap();
+    let reg = EdgeReg::new(&gpu, n_patches as u32).unwrap();
+    reg.pixel.write(&gpu, &pixel);
+    let d_rays = GpuBuffer::<RayOutput>::zeros(&gpu, "d rays", n_rays).unwrap();
+    let grads = FieldGrads::new(&gpu, capacity).unwrap();
+    let mut enc = gpu.encoder();
+    renderer.forward(&mut enc, &batch, &out, &render_out, 0).unwrap();
+    reg.record(&mut enc, &render_out.rays, &d_rays, n_patches as u32, &w);
+    renderer.backward(&mut enc, &batch, &out, &render_out, &d_rays, &grads, false).unwrap();
+    enc.submit();
+    let gpu_loss = reg.losses(&gpu, n_patches as u32).unwrap();
+    field.zero_grads(&gpu);
+    field.backward(&gpu, &batch, &grads, true).unwrap();
+    let groups = field.params();
+    let table_grad: Vec<f32> = groups.iter().find(|g| g.name == TABLE_NAME).unwrap().grads.read(&gpu).unwrap();
+    let mlp_grad: Vec<f32> = groups.iter().find(|g| g.name != TABLE_NAME).unwrap().grads.read(&gpu).unwrap();
+    drop(groups);
+
+    // CPU: the same chain in f64.
+    let model = field.reference(&gpu).unwrap();
+    // The official variant's means are held at their unperturbed values (stop-gradient).
+    let patch_rays_of = |m: &crate::field::grid::reference::GridModel| -> Vec<PatchRay> {
+        let mut rays = Vec::new();
+        for (r, range) in ranges.iter().enumerate() {
+            let ref_samples: Vec<render_ref::RefSample> = (range.start..range.start + range.count)
+                .map(|s| {
+                    let smp = &samples[s as usize];
+                    let t = m.forward(smp.pos.map(|v| v as f64), smp.dir.map(|v| v as f64));
+                    render_ref::RefSample { sigma: t.sigma, rgb: t.rgb, normal: t.normal, t: smp.t as f64, dt: smp.dt as f64 }
+                })
+                .collect();
+            let ray = render_ref::composite(&ref_samples, [0.0; 3], 0.0);
+            rays.push(PatchRay { e: pixel[r][0] as f64, z_scale: pixel[r][1] as f64, depth: ray.depth, normal: ray.normal });
+        }
+        rays
+    };
+    let frozen = patch_means(&patch_rays_of(&model));
+    let loss_of = |m: &crate::field::grid::reference::GridModel| -> (f64, f64) {
+        let rays = patch_rays_of(m);
+        let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(&rays) };
+        losses_given_means(&rays, &means, variant, w.tau_depth as f64, w.tau_normal as f64).0
+    };
+    let (lz, ln) = loss_of(&model);
+    assert!(lz > 1e-3 && ln > 1e-3, "the test scene must exercise both losses: {lz} {ln}");
+    assert!((gpu_loss.depth as f64 - lz).abs() < 1e-3 * lz && (gpu_loss.normal as f64 - ln).abs() < 1e-3 * ln);
+
+    let total = |m: &crate::field::grid::reference::GridModel| {
+        let (a, b) = loss_of(m);
+        a + b
+    };
+    let mut rng = SplitMix64::new(17);
+    let touched: Vec<usize> = (0..table_grad.len()).filter(|&i| table_grad[i] != 0.0).collect();
+    assert!(!touched.is_empty());
+    let mut checks: Vec<(bool, usize)> = (0..16).map(|_| (true, touched[rng.next_u64() as usize % touched.len()])).collect();
+    let nonzero_mlp: Vec<usize> = (0..mlp_grad.len()).filter(|&i| mlp_grad[i] != 0.0).collect();
+    checks.extend((0..16).map(|_| (false, nonzero_mlp[rng.next_u64() as usize % nonzero_mlp.len()])));
+    let scale = table_grad.iter().chain(&mlp_grad).fold(0.0f32, |a, v| a.max(v.abs())) as f64;
+    let eps = 1e-5;
+    for (is_table, idx) in checks {
+        let mut plus = model.clone();
+        let mut minus = model.clone();
+        let (p, m) = if is_table { (&mut plus.table, &mut minus.table) } else { (&mut plus.mlp, &mut minus.mlp) };
+        p[idx] += eps;
+        m[idx] -= eps;
+        let fd = (total(&plus) - total(&minus)) / (2.0 * eps);
+        let got = if is_table { table_grad[idx] } else { mlp_grad[idx] } as f64;
+        assert!(
+            (got - fd).abs() <= 3e-3 * scale + 2e-2 * fd.abs(),
+            "{variant:?} {}[{idx}]: GPU {got} vs finite differences {fd} (scale {scale})",
+            if is_table { "table" } else { "mlp" }
+        );
+    }
+}
+
+#[test]
+fn edge_reg_end_to_end_paper_matches_finite_differences() {
+    end_to_end(RegVariant::Paper);
+}
+
+#[test]
+fn edge_reg_end_to_end_official_matches_finite_differences() {
+    end_to_end(RegVariant::Official);
+}
