@@ -10,6 +10,7 @@ pub mod data;
 pub mod field;
 pub mod gpu;
 pub mod loss;
+pub mod metrics;
 pub mod optim;
 pub mod render;
 pub mod samples;

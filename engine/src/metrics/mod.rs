@@ -1,0 +1,95 @@
+//! Metrics: how good a rendered view is, against its image and (synthetic scenes) its
+//! ground-truth depth and normals. Pure CPU code on per-pixel slices; nothing here
+//! touches the GPU, reads files or knows about training.
+//!
+//! Owns:
+//! * [`image`]: PSNR and SSIM (scikit-image's Gaussian SSIM, step for step; equal to
+//!   ~1e-14 on the committed fixtures), and their DTU masked variants;
+//! * [`geometry`]: depth errors (AbsRel, RMSE, RMSE-log, delta < 1.25^k), normal
+//!   errors (mean/median angle, fraction under 11.25/22.5/30 deg), each over all valid
+//!   pixels and split into edge / non-edge regions by a ground-truth edge map, which it
+//!   also builds ([`geometry::gt_edge_map`]); [`geometry::evaluate_geometry`] computes
+//!   them all for one view;
+//! * [`boundary`]: the iBims-1 depth boundary error (DBE accuracy and completeness);
+//! * [`distance`]: the exact Euclidean distance transform both of the above use;
+//! * [`maps`]: error maps as RGB images for people (colours from [`crate::viz`]).
+//!
+//! Conventions (those of [`crate::data`]): images row-major, `width * height` pixels,
+//! RGB interleaved in `[0, 1]`; depth is the ray distance, `> 0` and finite where the
+//! ground truth has a surface; normals are world-space, a zero ground-truth normal
+//! marks a pixel without one. Predicted depth must be in the ground truth's units
+//! (`RenderedView::terminated_depth`); predicted normals need not be unit length.
+//!
+//! Invariants: every metric and map checks slice sizes and returns a [`MetricsError`]
+//! instead of panicking on them (only [`distance`], a building block, asserts); every
+//! metric is computed in `f64`; result structs
+//! are `serde`-serialisable, with `Option` where a region has no pixel, and state the
+//! parameters they were computed with.
+
+pub mod boundary;
+pub mod distance;
+pub mod geometry;
+pub mod image;
+pub mod maps;
+
+pub use boundary::{DbeParams, DepthBoundaryError, depth_boundary_error, depth_boundary_error_from_edges};
+pub use geometry::{
+    DepthErrors, EdgeMapParams, GeometryInputs, GeometryMetrics, GeometryParams, NormalErrors, Regions, depth_errors,
+    evaluate_geometry, gt_edge_map, normal_errors,
+};
+pub use image::{ImageMetrics, image_metrics, masked_image_metrics, psnr, psnr_from_mse, ssim};
+
+/// Inputs a metric cannot be computed on.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MetricsError {
+    /// Two per-pixel inputs of one call disagree in length.
+    #[error("{what} has {got} values where {expected} were expected (all inputs of a metric must have the same image size)")]
+    SizeMismatch { what: &'static str, expected: usize, got: usize },
+
+    /// The image is smaller than the SSIM window.
+    #[error("SSIM needs images of at least {min}x{min} pixels (its Gaussian window), got {width}x{height}")]
+    ImageTooSmall { width: u32, height: u32, min: u32 },
+
+    /// Nothing to average over (an empty image, or a mask with no pixel set).
+    #[error("{what} is empty: no pixel to compute the metric over")]
+    Empty { what: &'static str },
+}
+
+impl MetricsError {
+    /// `Ok` when `got == expected`, else [`MetricsError::SizeMismatch`].
+    pub(crate) fn check_len(what: &'static str, expected: usize, got: usize) -> Result<(), MetricsError> {
+        if got == expected { Ok(()) } else { Err(MetricsError::SizeMismatch { what, expected, got }) }
+    }
+}
+
+/// Numpy's `quantile(values, q)` (linear interpolation between the two nearest ranks,
+/// `q` in `[0, 1]`); `None` when empty. Sorts `values`.
+pub(crate) fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_unstable_by(f64::total_cmp);
+    let pos = q.clamp(0.0, 1.0) * (values.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    Some(values[lo] + (pos - lo as f64) * (values[hi] - values[lo]))
+}
+
+/// Numpy's median: the mean of the two middle values for an even count.
+pub(crate) fn median(values: &mut [f64]) -> Option<f64> {
+    quantile(values, 0.5)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_is_numpys() {
+        assert_eq!(median(&mut []), None);
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        // numpy.quantile([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10], 0.98) == 9.8
+        let mut v: Vec<f64> = (0..=10).rev().map(f64::from).collect();
+        assert!((quantile(&mut v, 0.98).unwrap() - 9.8).abs() < 1e-12);
+    }
+}
