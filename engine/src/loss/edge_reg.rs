@@ -71,6 +71,101 @@ pub enum RegVariant {
     Official,
 }
 
+/// The regularizers' settings in a run configuration (`[reg]`).
+///
+/// Defaults are the paper's (section 4.1): `lambda2 = 0.1`, `tau1 = 1e-4`, `tau2 = 0`,
+/// `lambda3 = 0.1`, or `0.001` on DTU scenes; the official variant's `lambda3` is the
+/// authors' `0.01`. The weights ramp linearly from 0 at `start_step` to full at
+/// `start_step + warmup_steps` (0: full weight from `start_step`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RegConfig {
+    /// Edge-guided depth regularization `L_z`.
+    pub depth: bool,
+    /// Edge-guided normal regularization `L_n` (needs analytic normals and the
+    /// second-order backward: the costlier of the two).
+    pub normal: bool,
+    pub variant: RegVariant,
+    /// `lambda2`.
+    pub lambda_depth: f32,
+    /// `lambda3`; `None`: the variant's default (see the type doc).
+    pub lambda_normal: Option<f32>,
+    /// `tau1` (depth tolerance, in the units of the regularized depth).
+    pub tau_depth: f32,
+    /// `tau2` (paper variant only; the official `L_n` has no hinge).
+    pub tau_normal: f32,
+    pub start_step: u64,
+    pub warmup_steps: u64,
+    /// `lambda1`, the weight of the photometric `L_c` (the paper: 1).
+    pub lambda_color: f32,
+}
+
+impl Default for RegConfig {
+    fn default() -> Self {
+        Self {
+            depth: true,
+            normal: true,
+            variant: RegVariant::Paper,
+            lambda_depth: 0.1,
+            lambda_normal: None,
+            tau_depth: 1e-4,
+            tau_normal: 0.0,
+            start_step: 0,
+            warmup_steps: 0,
+            lambda_color: 1.0,
+        }
+    }
+}
+
+impl RegConfig {
+    /// `lambda3` in effect: the configured one, else the variant's default.
+    pub fn lambda_normal_for(&self, dtu_scene: bool) -> f32 {
+        self.lambda_normal.unwrap_or(match self.variant {
+            RegVariant::Paper if dtu_scene => 0.001,
+            RegVariant::Paper => 0.1,
+            RegVariant::Official => 0.01,
+        })
+    }
+
+    /// Whether any term is switched on (with a nonzero weight).
+    pub fn any(&self, dtu_scene: bool) -> bool {
+        (self.depth && self.lambda_depth > 0.0) || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
+    }
+
+    /// The weights of step `step` (schedule applied), `None` when nothing is active.
+    pub fn weights_at(&self, step: u64, dtu_scene: bool) -> Option<EdgeRegWeights> {
+        if step < self.start_step {
+            return None;
+        }
+        let ramp = if self.warmup_steps == 0 {
+            1.0
+        } else {
+            (((step - self.start_step) + 1) as f64 / self.warmup_steps as f64).min(1.0) as f32
+        };
+        let w = EdgeRegWeights {
+            variant: self.variant,
+            lambda_depth: if self.depth { ramp * self.lambda_depth } else { 0.0 },
+            lambda_normal: if self.normal { ramp * self.lambda_normal_for(dtu_scene) } else { 0.0 },
+            tau_depth: self.tau_depth,
+            tau_normal: self.tau_normal,
+        };
+        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0).then_some(w)
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let finite_nonneg = |v: f32| v.is_finite() && v >= 0.0;
+        if !(finite_nonneg(self.lambda_depth)
+            && finite_nonneg(self.lambda_color)
+            && self.lambda_normal.is_none_or(finite_nonneg)
+            && finite_nonneg(self.tau_depth)
+            && finite_nonneg(self.tau_normal))
+        {
+            return Err("reg: weights and thresholds must be finite and >= 0".into());
+        }
+        Ok(())
+    }
+}
+
 /// Weights and thresholds of one launch (the trainer applies the schedule).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EdgeRegWeights {

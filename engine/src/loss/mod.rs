@@ -9,5 +9,5 @@
 pub mod edge_reg;
 pub mod photometric;
 
-pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegVariant};
+pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;

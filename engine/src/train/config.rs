@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::edges::EdgeConfig;
 use crate::field::GridConfig;
+use crate::loss::RegConfig;
 use crate::optim::OptimConfig;
 use crate::render::RenderConfig;
 use crate::sampler::SamplerConfig;
@@ -51,8 +53,14 @@ impl Default for LevelAnneal {
 pub struct TrainConfig {
     /// Optimisation steps.
     pub iters: u64,
-    /// Rays per step.
+    /// Rays per step (a multiple of 4 with patch batches: `rays_per_batch / 4` patches).
     pub rays_per_batch: u32,
+    /// How a step's rays are drawn: 2x2 patches of `images_per_step` training images
+    /// (EdgeNeRF; what the edge-guided regularizers need), or single pixels uniform over
+    /// all training images (Instant-NGP; the regularizers are then inactive).
+    pub batch: BatchKind,
+    /// Training images a patch batch is drawn from per step (the paper: 1).
+    pub images_per_step: u32,
     /// Sample capacity of a step's batch (rays past it are truncated).
     pub max_samples: u32,
     /// Seed of pixel selection, jitter and the occupancy grid's random cells.
@@ -73,6 +81,8 @@ impl Default for TrainConfig {
         Self {
             iters: 5000,
             rays_per_batch: 4096,
+            batch: BatchKind::Patches,
+            images_per_step: 1,
             max_samples: 1 << 18,
             seed: 0,
             checkpoint_every: 1000,
@@ -80,6 +90,15 @@ impl Default for TrainConfig {
             random_background: true,
         }
     }
+}
+
+/// How a training step draws its rays (see [`TrainConfig::batch`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BatchKind {
+    #[default]
+    Patches,
+    Pixels,
 }
 
 /// Which field backend.
@@ -101,6 +120,10 @@ pub struct RunConfig {
     pub render: RenderConfig,
     pub optim: OptimConfig,
     pub train: TrainConfig,
+    /// Edge maps of the training images (the regularizers' masks).
+    pub edges: EdgeConfig,
+    /// The edge-guided depth and normal regularizers.
+    pub reg: RegConfig,
 }
 
 impl RunConfig {

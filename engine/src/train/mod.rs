@@ -4,10 +4,16 @@
 //! One step ([`Trainer::step`]):
 //! ```text
 //! occupancy grid update (every 16 steps: field densities at grid query points)
-//! random training pixels -> rays (host) -> sampler (occupancy grid + BVH) -> samples
-//! field forward -> composite -> photometric loss -> composite backward
-//! zero grads -> field backward -> grad norm / NaN check / clip -> Adam (GPU)
+//! random 2x2 patches of one training image (or random pixels) -> rays (host)
+//!   -> sampler (occupancy grid + BVH) -> samples
+//! field forward (+ analytic normals when L_n is on) -> composite
+//!   -> photometric loss L_c (+ edge-guided L_z, L_n on the patches) -> composite backward
+//! zero grads -> field backward (second order through the normals when L_n is on)
+//!   -> grad norm / NaN check / clip -> Adam (GPU)
 //! ```
+//! The total loss is `L_c + lambda2 L_z + lambda3 L_n` (see [`crate::loss::edge_reg`]);
+//! the edge masks of the training views are computed once when the trainer is built
+//! (or given by the caller, e.g. from a cache next to the run).
 //! The host reads back one small set of numbers per step (the batch's squared errors,
 //! the gradient statistics and the sample count) for logging and the NaN guard.
 //!
@@ -28,17 +34,18 @@ pub mod rays;
 
 use std::path::{Path, PathBuf};
 
-use crate::data::{DataError, Scene};
+use crate::data::{DataError, Scene, SceneFormat};
+use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
-use crate::loss::{Photometric, photometric::psnr};
+use crate::loss::{EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
 use crate::render::{Background, RenderConfig, RenderError, Renderer, random_background};
 use crate::sampler::SamplerError;
 use crate::samples::{FieldGrads, RayOutput};
 
 pub use checkpoint::Checkpoint;
-pub use config::{Backend, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
+pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
 pub use model::{Model, RenderedView};
 
 use model::BatchBuffers;
@@ -58,6 +65,8 @@ pub enum TrainError {
     Render(#[from] RenderError),
     #[error(transparent)]
     Optim(#[from] OptimError),
+    #[error("edge maps: {0}")]
+    Edges(#[from] EdgeError),
     #[error("{path}: {message}")]
     Io { path: PathBuf, message: String },
     #[error("configuration from {source_name}: {message}")]
@@ -81,8 +90,16 @@ impl TrainError {
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct StepStats {
     pub step: u64,
+    /// Total loss `lambda1 L_c + lambda2 L_z + lambda3 L_n` with this step's weights.
     pub loss: f32,
+    /// Photometric `L_c` (mean squared error) and the PSNR of the batch from it.
+    pub loss_color: f32,
     pub psnr: f32,
+    /// Unweighted `L_z` and `L_n` (0 when inactive) and the weights they entered with.
+    pub loss_depth: f32,
+    pub loss_normal: f32,
+    pub lambda_depth: f32,
+    pub lambda_normal: f32,
     pub lr: f32,
     pub grad_norm: f32,
     /// Samples evaluated, and their mean per ray.
@@ -92,6 +109,32 @@ pub struct StepStats {
     pub samples_truncated: u32,
     /// Occupied fraction of the occupancy grid after this step's update, if any.
     pub occupied_fraction: Option<f32>,
+}
+
+impl StepStats {
+    /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s";
+
+    /// One CSV row, `elapsed_s` since the start of the run appended.
+    pub fn csv_row(&self, elapsed_s: f64) -> String {
+        format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3}",
+            self.step,
+            self.loss,
+            self.loss_color,
+            self.loss_depth,
+            self.loss_normal,
+            self.lambda_depth,
+            self.lambda_normal,
+            self.psnr,
+            self.lr,
+            self.grad_norm,
+            self.samples,
+            self.samples_per_ray,
+            self.samples_truncated,
+            elapsed_s
+        )
+    }
 }
 
 /// Test-view evaluation.
@@ -165,6 +208,10 @@ pub struct Trainer {
     adam: Adam,
     grad_norm: GradNorm,
     photometric: Photometric,
+    edge_reg: EdgeReg,
+    /// Edge mask of each training view (`scene.split.train` order); computed at the
+    /// first step that draws patches unless given (rendering never needs them).
+    edge_masks: Option<Vec<EdgeMask>>,
     bufs: BatchBuffers,
     /// Renders training batches over random backgrounds (images with alpha and
     /// `train.random_background`); `None`: the model's own renderer.
@@ -176,12 +223,39 @@ pub struct Trainer {
 }
 
 impl Trainer {
-    /// A new run on `scene` with `config` (the scene path in the config is informative).
+    /// A new run on `scene` with `config` (the scene path in the config is informative);
+    /// the edge masks are computed from `config.edges` when the regularizers need them.
     pub fn new(gpu: Gpu, scene: Scene, config: RunConfig) -> Result<Trainer, TrainError> {
+        Self::with_edge_masks(gpu, scene, config, None)
+    }
+
+    /// Whether a run with `config` on `scene` reads edge masks.
+    pub fn needs_edge_masks(config: &RunConfig, scene: &Scene) -> bool {
+        config.train.batch == BatchKind::Patches && config.reg.any(is_dtu(scene))
+    }
+
+    /// [`Trainer::new`] with the training views' edge masks given (`scene.split.train`
+    /// order), e.g. read from a cache; `None`: computed here when needed.
+    pub fn with_edge_masks(gpu: Gpu, scene: Scene, config: RunConfig, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         config.optim.validate()?;
+        let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
+        config.reg.validate().map_err(config_error)?;
         if scene.split.train.is_empty() {
             return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
         }
+        let patches = config.train.batch == BatchKind::Patches;
+        if patches && (config.train.rays_per_batch % 4 != 0 || config.train.rays_per_batch == 0) {
+            return Err(config_error(format!(
+                "train.rays_per_batch = {} must be a positive multiple of 4 with patch batches (4 rays per 2x2 patch)",
+                config.train.rays_per_batch
+            )));
+        }
+        if let Some(m) = &masks
+            && m.len() != scene.split.train.len()
+        {
+            return Err(config_error(format!("{} edge masks for {} training views", m.len(), scene.split.train.len())));
+        }
+        let edge_masks = masks;
         let model = Model::new(&gpu, &scene, config.clone())?;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
         let n = config.train.rays_per_batch;
@@ -194,6 +268,8 @@ impl Trainer {
             random_bg_renderer,
             grad_norm: GradNorm::new(&gpu)?,
             photometric: Photometric::new(&gpu, n)?,
+            edge_reg: EdgeReg::new(&gpu, n / 4)?,
+            edge_masks,
             bufs: BatchBuffers::new(&gpu, n, capacity)?,
             targets: GpuBuffer::zeros(&gpu, "targets", n as usize)?,
             d_rays: GpuBuffer::zeros(&gpu, "d rays", n as usize)?,
@@ -207,9 +283,9 @@ impl Trainer {
     }
 
     /// Resumes from a checkpoint: parameters, optimizer state and step; the occupancy
-    /// grid is rebuilt from the restored field.
-    pub fn resume(gpu: Gpu, scene: Scene, ckpt: Checkpoint) -> Result<Trainer, TrainError> {
-        let mut t = Trainer::new(gpu, scene, ckpt.config)?;
+    /// grid is rebuilt from the restored field. `masks` as in [`Trainer::with_edge_masks`].
+    pub fn resume(gpu: Gpu, scene: Scene, ckpt: Checkpoint, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
+        let mut t = Trainer::with_edge_masks(gpu, scene, ckpt.config, masks)?;
         t.model.field.import(&t.gpu, &ckpt.field)?;
         t.adam.import_state(&t.gpu, &ckpt.optimizer)?;
         t.step = ckpt.step;
@@ -244,14 +320,52 @@ impl Trainer {
 
     /// One optimisation step (see the module doc).
     pub fn step(&mut self) -> Result<StepStats, TrainError> {
+        let batch = self.draw_batch()?;
+        self.step_on(batch)
+    }
+
+    /// The batch [`Trainer::step`] trains on next: 2x2 patches with their edge masks or
+    /// single pixels, as `train.batch` says (a pure function of the seed and step).
+    pub fn draw_batch(&mut self) -> Result<rays::PixelBatch, TrainError> {
+        let (step, seed) = (self.step, self.config().train.seed);
+        let n = self.config().train.rays_per_batch;
+        if self.config().train.batch == BatchKind::Pixels {
+            return Ok(rays::random_pixels(&self.scene, n, seed, step));
+        }
+        if self.edge_masks.is_none() {
+            self.edge_masks = Some(if Self::needs_edge_masks(&self.model.config, &self.scene) {
+                crate::edges::edge_masks(&self.scene, &self.scene.split.train, &self.model.config.edges)?
+            } else {
+                let (w, h) = self.scene.image_size();
+                vec![EdgeMask::all_non_edge(w, h); self.scene.split.train.len()]
+            });
+        }
+        let masks = self.edge_masks.as_deref().expect("computed above");
+        Ok(rays::random_patches(&self.scene, masks, n / 4, self.config().train.images_per_step, seed, step))
+    }
+
+    /// One optimisation step on a given batch of `train.rays_per_batch` rays (patch
+    /// batches carry their edge masks in [`rays::PixelBatch::reg`]; the regularizers
+    /// run on them when `train.batch` is `patches`).
+    pub fn step_on(&mut self, mut batch: rays::PixelBatch) -> Result<StepStats, TrainError> {
         let gpu = self.gpu.clone();
         let step = self.step;
         let seed = self.config().train.seed;
+        let n = self.config().train.rays_per_batch;
+        if batch.rays.len() != n as usize || batch.targets.len() != n as usize {
+            return Err(TrainError::Config {
+                source_name: "batch".into(),
+                message: format!("{} rays given, train.rays_per_batch is {n}", batch.rays.len()),
+            });
+        }
         self.apply_level_anneal();
         let update = self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
-
-        let n = self.config().train.rays_per_batch;
-        let mut batch = rays::random_pixels(&self.scene, n, seed, step);
+        let patches = self.config().train.batch == BatchKind::Patches && batch.reg.len() == n as usize;
+        let reg = if patches { self.config().reg.weights_at(step, is_dtu(&self.scene)) } else { None };
+        let normals = reg.is_some_and(|w| w.lambda_normal > 0.0);
+        if reg.is_some() {
+            self.edge_reg.pixel.write(&gpu, &batch.reg);
+        }
         let bg_seed = step as u32;
         if self.random_bg_renderer.is_some() {
             let loaded_over = self.scene.background.unwrap_or([1.0; 3]);
@@ -260,13 +374,17 @@ impl Trainer {
         self.bufs.rays.write(&gpu, &batch.rays);
         self.targets.write(&gpu, &batch.targets);
         let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
-        self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), false)?;
+        self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), normals)?;
 
         let bufs = &self.bufs;
         let renderer = self.random_bg_renderer.as_ref().unwrap_or(&self.model.renderer);
         let mut enc = gpu.encoder();
         renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, bg_seed)?;
-        self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n, n as f32, 1.0);
+        let lambda_color = self.config().reg.lambda_color;
+        self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n, n as f32, lambda_color);
+        if let Some(w) = &reg {
+            self.edge_reg.record(&mut enc, &bufs.render_out.rays, &self.d_rays, n / 4, w);
+        }
         renderer.backward(
             &mut enc,
             &bufs.batch,
@@ -281,12 +399,15 @@ impl Trainer {
         // loss need not give non-finite gradients (activations can flush NaN), so
         // Adam's own skip of non-finite gradients is not enough on its own.
         let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
-        if !mse.is_finite() {
-            self.step += 1;
-            return Err(TrainError::NonFinite { step, what: "the photometric loss".into() });
+        let reg_losses = if reg.is_some() { self.edge_reg.losses(&gpu, n / 4)? } else { EdgeRegLosses::default() };
+        for (value, what) in [(mse, "the photometric loss"), (reg_losses.depth, "L_z"), (reg_losses.normal, "L_n")] {
+            if !value.is_finite() {
+                self.step += 1;
+                return Err(TrainError::NonFinite { step, what: what.into() });
+            }
         }
         self.model.field.zero_grads(&gpu);
-        self.model.field.backward(&gpu, &bufs.batch, &self.field_grads, false)?;
+        self.model.field.backward(&gpu, &bufs.batch, &self.field_grads, normals)?;
 
         // Schedules count steps from 1 (mip-NeRF convention).
         let lr = self.config().optim.schedule.lr(step + 1);
@@ -304,10 +425,16 @@ impl Trainer {
             return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }
         let n_cells = self.config().sampler.resolution.pow(3) as f32;
+        let (lambda_depth, lambda_normal) = reg.map_or((0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal));
         Ok(StepStats {
             step,
-            loss: mse,
+            loss: lambda_color * mse + lambda_depth * reg_losses.depth + lambda_normal * reg_losses.normal,
+            loss_color: mse,
             psnr: psnr(mse),
+            loss_depth: reg_losses.depth,
+            loss_normal: reg_losses.normal,
+            lambda_depth,
+            lambda_normal,
             lr,
             grad_norm: grad.raw_norm,
             samples: counts[0],
@@ -331,6 +458,11 @@ impl Trainer {
     pub fn evaluate(&mut self) -> Result<(Evaluation, Vec<(usize, RenderedView)>), TrainError> {
         evaluate(&self.gpu, &mut self.model, &self.scene)
     }
+}
+
+/// DTU scenes take the paper's DTU default of `lambda3`.
+fn is_dtu(scene: &Scene) -> bool {
+    matches!(scene.format, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf)
 }
 
 /// Renders the test views of `scene` with `model` and measures each against its image

@@ -1,6 +1,10 @@
 //! Rays for training and rendering: scene pixels to [`GpuRay`]s, and the random pixel
 //! batches of a training step.
 //!
+//! Two kinds of batches: single pixels uniform over all training views
+//! ([`random_pixels`]), and 2x2 patches of a few views with their edge masks
+//! ([`random_patches`], what the edge-guided regularizers read).
+//!
 //! Invariants: a ray's `[t_min, t_max]` is the scene's near/far range clipped to the
 //! scene AABB (world-space scenes) or `[0, 1]` (NDC scenes); a ray that misses the
 //! AABB gets `t_min == t_max` and therefore no samples. Pixel selection is a pure
@@ -9,6 +13,7 @@
 use glam::Vec3;
 
 use crate::data::{Ray, Scene};
+use crate::edges::EdgeMask;
 use crate::samples::GpuRay;
 
 /// SplitMix64: a small, well-mixed deterministic generator.
@@ -69,13 +74,18 @@ pub fn view_rays(scene: &Scene, view: usize) -> Vec<GpuRay> {
     scene.image_rays(view).iter().map(|r| to_gpu_ray(scene, r)).collect()
 }
 
-/// A step's random training pixels: uniform over the pixels of all training views.
+/// A step's training rays and their targets.
+#[derive(Clone, Default)]
 pub struct PixelBatch {
     pub rays: Vec<GpuRay>,
     /// Target colour and weight (1).
     pub targets: Vec<[f32; 4]>,
     /// The pixel's alpha where its image has one.
     pub alpha: Vec<Option<f32>>,
+    /// Per ray `(e, z_scale)` for the edge-guided regularizers (patch batches only):
+    /// `e` = 1 on non-edge pixels; `z_scale` turns the rendered ray parameter into the
+    /// regularized depth ([`Ray::z_scale`]: along the camera axis in world space, 1 in NDC).
+    pub reg: Vec<[f32; 2]>,
 }
 
 impl PixelBatch {
@@ -92,26 +102,77 @@ impl PixelBatch {
             }
         }
     }
+
+    /// Appends the ray of pixel `(x, y)` of `view`; returns the ray's `z_scale`.
+    fn push(&mut self, scene: &Scene, view: usize, x: u32, y: u32) -> f32 {
+        let ray = scene.ray(view, x, y);
+        self.rays.push(to_gpu_ray(scene, &ray));
+        let px = scene.views[view].image.get(x, y);
+        self.targets.push([px[0], px[1], px[2], 1.0]);
+        let w = scene.views[view].camera.width;
+        self.alpha.push(scene.views[view].alpha.as_ref().map(|a| a[(y * w + x) as usize]));
+        ray.z_scale
+    }
 }
 
-/// Draws `n` training pixels for `step` (a pure function of `seed` and `step`).
+fn step_rng(seed: u64, step: u64) -> Rng {
+    Rng::new(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step)
+}
+
+/// Draws `n` training pixels for `step`, uniform over the pixels of all training views
+/// (a pure function of `seed` and `step`).
 pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch {
-    let mut rng = Rng::new(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step);
+    let mut rng = step_rng(seed, step);
     let train = &scene.split.train;
     let (w, h) = scene.image_size();
-    let mut rays = Vec::with_capacity(n as usize);
-    let mut targets = Vec::with_capacity(n as usize);
-    let mut alpha = Vec::with_capacity(n as usize);
+    let mut batch = PixelBatch::default();
     for _ in 0..n {
         let view = train[rng.below(train.len() as u64) as usize];
         let x = rng.below(w as u64) as u32;
         let y = rng.below(h as u64) as u32;
-        rays.push(to_gpu_ray(scene, &scene.ray(view, x, y)));
-        let px = scene.views[view].image.get(x, y);
-        targets.push([px[0], px[1], px[2], 1.0]);
-        alpha.push(scene.views[view].alpha.as_ref().map(|a| a[(y * w + x) as usize]));
+        batch.push(scene, view, x, y);
     }
-    PixelBatch { rays, targets, alpha }
+    batch
+}
+
+/// Draws `n_patches` random 2x2 patches for `step` (EdgeNeRF's batches): from
+/// `images_per_step` distinct training views chosen at random (the paper: one), patches
+/// dealt to them in turn, top-left corners uniform over the image. Rays
+/// `4m .. 4m+3` are patch `m` in the order `(x, y), (x+1, y), (x, y+1), (x+1, y+1)`.
+/// `masks[i]` is the edge mask of `scene.split.train[i]`. A pure function of `seed` and
+/// `step`.
+pub fn random_patches(
+    scene: &Scene,
+    masks: &[EdgeMask],
+    n_patches: u32,
+    images_per_step: u32,
+    seed: u64,
+    step: u64,
+) -> PixelBatch {
+    let mut rng = step_rng(seed, step);
+    let train = &scene.split.train;
+    assert_eq!(masks.len(), train.len(), "one edge mask per training view");
+    // A partial Fisher-Yates shuffle picks the step's distinct views.
+    let mut order: Vec<usize> = (0..train.len()).collect();
+    let k = (images_per_step.max(1) as usize).min(train.len());
+    for i in 0..k {
+        let j = i + rng.below((train.len() - i) as u64) as usize;
+        order.swap(i, j);
+    }
+    let (w, h) = scene.image_size();
+    let mut batch = PixelBatch::default();
+    for m in 0..n_patches as usize {
+        let i = order[m % k];
+        let view = train[i];
+        let x0 = rng.below((w - 1).max(1) as u64) as u32;
+        let y0 = rng.below((h - 1).max(1) as u64) as u32;
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let (x, y) = ((x0 + dx).min(w - 1), (y0 + dy).min(h - 1));
+            let z_scale = batch.push(scene, view, x, y);
+            batch.reg.push([masks[i].at(x, y), z_scale]);
+        }
+    }
+    batch
 }
 
 #[cfg(test)]
@@ -131,6 +192,7 @@ mod tests {
     #[test]
     fn recompositing_swaps_the_background_behind_alpha() {
         let mut b = PixelBatch {
+            reg: Vec::new(),
             rays: vec![GpuRay::default(); 3],
             // Composited over white: 0.25 * fg + 0.75 * 1 with fg = 0.2 -> 0.8.
             targets: vec![[0.8, 0.8, 0.8, 1.0], [0.3, 0.4, 0.5, 1.0], [0.9, 0.9, 0.9, 1.0]],

@@ -38,7 +38,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let scene = Scene::load(&scene_path, &opts)
         .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
     let gpu = Gpu::new(gpu_opts)?;
-    let mut trainer = Trainer::resume(gpu, scene, ckpt)?;
+    let mut trainer = Trainer::resume(gpu, scene, ckpt, None)?;
     let views: Vec<usize> = match args.split.as_str() {
         "test" => trainer.scene.split.test.clone(),
         "train" => trainer.scene.split.train.clone(),

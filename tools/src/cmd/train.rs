@@ -8,7 +8,8 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use edgenerf::data::{LoadOptions, Scene};
 use edgenerf::gpu::{Gpu, GpuOptions};
-use edgenerf::train::{Backend, Checkpoint, RunConfig, Trainer, TrainError};
+use edgenerf::loss::RegVariant;
+use edgenerf::train::{Backend, Checkpoint, RunConfig, StepStats, Trainer, TrainError};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
@@ -27,6 +28,22 @@ pub struct Args {
     /// Field backend.
     #[arg(long, value_parser = ["grid"])]
     backend: Option<String>,
+    /// Switch off the edge-guided depth regularizer L_z (reg.depth = false).
+    #[arg(long)]
+    no_depth_reg: bool,
+    /// Switch off the edge-guided normal regularizer L_n (reg.normal = false).
+    #[arg(long)]
+    no_normal_reg: bool,
+    /// `paper`: the paper's equations; `official`: the authors' code (stop-gradient
+    /// means, squared normal error without hinge, lambda3 0.01).
+    #[arg(long, value_parser = ["paper", "official"])]
+    reg_variant: Option<String>,
+    /// lambda2, the weight of L_z (reg.lambda_depth; paper 0.1).
+    #[arg(long)]
+    lambda_depth: Option<f32>,
+    /// lambda3, the weight of L_n (reg.lambda_normal; paper 0.1, 0.001 on DTU; official 0.01).
+    #[arg(long)]
+    lambda_normal: Option<f32>,
     /// Config file (TOML or JSON) with any subset of the run configuration.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -61,6 +78,21 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
             other => bail!("unknown backend {other}"),
         };
     }
+    if args.no_depth_reg {
+        config.reg.depth = false;
+    }
+    if args.no_normal_reg {
+        config.reg.normal = false;
+    }
+    if let Some(v) = &args.reg_variant {
+        config.reg.variant = if v == "official" { RegVariant::Official } else { RegVariant::Paper };
+    }
+    if let Some(l) = args.lambda_depth {
+        config.reg.lambda_depth = l;
+    }
+    if args.lambda_normal.is_some() {
+        config.reg.lambda_normal = args.lambda_normal;
+    }
     for o in &args.overrides {
         config.set(o)?;
     }
@@ -75,7 +107,22 @@ fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
     Scene::load(&config.scene.path, &opts).with_context(|| format!("loading {}", config.scene.path.display()))
 }
 
+/// The training views' edge masks, cached in `<out>/edges/` (PNG per view, reused while
+/// the edge settings and images are unchanged); `None` when the run reads no masks.
+fn edge_masks(args: &Args, config: &RunConfig, scene: &Scene) -> anyhow::Result<Option<Vec<edgenerf::edges::EdgeMask>>> {
+    if !Trainer::needs_edge_masks(config, scene) {
+        return Ok(None);
+    }
+    let dir = args.out.join("edges");
+    let masks = edgenerf::edges::edge_masks_cached(scene, &scene.split.train, &config.edges, &dir)
+        .with_context(|| format!("edge masks of the training views (cache {})", dir.display()))?;
+    let mean_edge = masks.iter().map(|m| m.edge_fraction()).sum::<f32>() / masks.len().max(1) as f32;
+    eprintln!("edge masks: {} views, {:.1}% edge pixels on average, in {}", masks.len(), 100.0 * mean_edge, dir.display());
+    Ok(Some(masks))
+}
+
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let ckpt_path = args.out.join("checkpoint.safetensors");
     let gpu = Gpu::new(gpu_opts)?;
     let mut trainer = if args.resume {
@@ -84,13 +131,14 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             ckpt.config.train.iters = iters;
         }
         let scene = load_scene(&ckpt.config)?;
-        Trainer::resume(gpu, scene, ckpt)?
+        let masks = edge_masks(&args, &ckpt.config, &scene)?;
+        Trainer::resume(gpu, scene, ckpt, masks)?
     } else {
         let config = build_config(&args)?;
         let scene = load_scene(&config)?;
-        Trainer::new(gpu, scene, config)?
+        let masks = edge_masks(&args, &config, &scene)?;
+        Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let config = trainer.config().clone();
     std::fs::write(args.out.join("config.json"), config.to_json())?;
     eprintln!(
@@ -110,7 +158,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         .open(&log_path)
         .with_context(|| format!("opening {}", log_path.display()))?;
     if log.metadata()?.len() == 0 {
-        writeln!(log, "step,loss,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s")?;
+        writeln!(log, "{}", StepStats::CSV_HEADER)?;
     }
 
     let iters = config.train.iters;
@@ -133,18 +181,19 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             Err(e) => return Err(e.into()),
         };
         let elapsed = start.elapsed().as_secs_f64();
-        writeln!(
-            log,
-            "{},{},{},{},{},{},{},{},{:.3}",
-            stats.step, stats.loss, stats.psnr, stats.lr, stats.grad_norm, stats.samples, stats.samples_per_ray, stats.samples_truncated, elapsed
-        )?;
+        writeln!(log, "{}", stats.csv_row(elapsed))?;
         let ema = psnr_ema.map_or(stats.psnr, |p| 0.9 * p + 0.1 * stats.psnr);
         psnr_ema = Some(ema);
         let steps_per_s = (trainer.step_count() - first_step) as f64 / elapsed.max(1e-9);
         bar.set_position(trainer.step_count());
+        let reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
+            format!(" Lz {:.2e} Ln {:.2e}", stats.loss_depth, stats.loss_normal)
+        } else {
+            String::new()
+        };
         bar.set_message(format!(
-            "loss {:.5} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
-            stats.loss, ema, stats.samples_per_ray, steps_per_s
+            "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
+            stats.loss_color, ema, stats.samples_per_ray, steps_per_s
         ));
         let every = config.train.checkpoint_every;
         if every > 0 && trainer.step_count() % every == 0 && trainer.step_count() < iters {
