@@ -69,7 +69,7 @@ impl Photometric {
 
 /// PSNR in dB of a mean squared error on `[0, 1]` images.
 pub fn psnr(mse: f32) -> f32 {
-    -10.0 * mse.max(1e-10).log10()
+    crate::metrics::image::psnr_from_mse(mse as f64) as f32
 }
 
 #[cfg(test)]

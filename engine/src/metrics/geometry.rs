@@ -61,6 +61,8 @@ pub const DEGENERATE_NORMAL_DEG: f64 = 90.0;
 pub struct DepthErrors {
     /// Pixels averaged over.
     pub pixels: usize,
+    /// Mean absolute error `mean |d - d*|`, in the depth's units.
+    pub abs: f64,
     pub abs_rel: f64,
     pub rmse: f64,
     pub rmse_log: f64,
@@ -330,10 +332,11 @@ fn split<T>(edges: Option<&[bool]>, region: impl Fn(Option<bool>) -> Option<T>) 
 
 /// Statistics of `(gt, clamped prediction)` pairs; `None` when there is none.
 fn depth_stats(pairs: impl Iterator<Item = (f64, f64)>) -> Option<DepthErrors> {
-    let (mut n, mut abs_rel, mut se, mut se_log) = (0usize, 0.0, 0.0, 0.0);
+    let (mut n, mut abs, mut abs_rel, mut se, mut se_log) = (0usize, 0.0, 0.0, 0.0, 0.0);
     let mut within = [0usize; 3];
     for (g, d) in pairs {
         n += 1;
+        abs += (d - g).abs();
         abs_rel += (d - g).abs() / g;
         se += (d - g) * (d - g);
         se_log += (d.ln() - g.ln()).powi(2);
@@ -346,6 +349,7 @@ fn depth_stats(pairs: impl Iterator<Item = (f64, f64)>) -> Option<DepthErrors> {
         let nf = n as f64;
         DepthErrors {
             pixels: n,
+            abs: abs / nf,
             abs_rel: abs_rel / nf,
             rmse: (se / nf).sqrt(),
             rmse_log: (se_log / nf).sqrt(),

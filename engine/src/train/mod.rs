@@ -39,6 +39,9 @@ use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 use crate::loss::{EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
+use crate::metrics::MetricsError;
+use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, GeometryParams, NormalErrors, Regions, evaluate_geometry};
+use crate::metrics::image::image_metrics;
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
 use crate::render::{Background, RenderConfig, RenderError, Renderer, random_background};
 use crate::sampler::SamplerError;
@@ -67,6 +70,8 @@ pub enum TrainError {
     Optim(#[from] OptimError),
     #[error("edge maps: {0}")]
     Edges(#[from] EdgeError),
+    #[error("evaluation: {0}")]
+    Metrics(#[from] MetricsError),
     #[error("{path}: {message}")]
     Io { path: PathBuf, message: String },
     #[error("configuration from {source_name}: {message}")]
@@ -137,15 +142,27 @@ impl StepStats {
     }
 }
 
-/// Test-view evaluation.
+/// Test-view evaluation: per view, and means over views (geometry means over the views
+/// that have ground truth; see [`crate::metrics`] for the definitions).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Evaluation {
     pub per_view: Vec<ViewEvaluation>,
-    /// Mean of the per-view PSNRs (the convention of NeRF papers).
+    /// Mean of the per-view PSNRs (the convention of NeRF papers), and of the SSIMs.
     pub mean_psnr: f32,
-    /// Means over the views that have ground truth (see [`ViewEvaluation`]).
+    pub mean_ssim: f32,
+    /// Mean absolute depth error (world units) over all GT pixels, outside and inside
+    /// the GT edge band (within `dilate_px` of a GT depth/normal discontinuity).
     pub mean_depth_abs_error: Option<f32>,
+    pub mean_depth_abs_error_non_edge: Option<f32>,
+    pub mean_depth_abs_error_edge: Option<f32>,
+    pub mean_depth_abs_rel: Option<f32>,
+    /// Mean normal angle (degrees), likewise split.
     pub mean_normal_angle_deg: Option<f32>,
+    pub mean_normal_angle_deg_non_edge: Option<f32>,
+    pub mean_normal_angle_deg_edge: Option<f32>,
+    /// iBims-1 depth boundary error (pixels): accuracy and completeness.
+    pub mean_dbe_accuracy: Option<f32>,
+    pub mean_dbe_completeness: Option<f32>,
 }
 
 /// One rendered test view against its image and, where the scene has them, its
@@ -154,50 +171,67 @@ pub struct Evaluation {
 pub struct ViewEvaluation {
     pub view: usize,
     pub psnr: f32,
-    /// Mean |rendered - GT ray distance| over pixels with GT depth (world units;
-    /// world-space scenes only). The rendered distance is
-    /// [`RenderedView::terminated_depth`], the expected distance given termination.
-    pub depth_abs_error: Option<f32>,
-    /// Mean angle in degrees between the renormalised rendered normal and the GT
-    /// normal, over pixels with a GT normal.
-    pub normal_angle_deg: Option<f32>,
+    pub ssim: f32,
+    /// Geometry against ground truth (scenes with GT depth or normals; depth only for
+    /// world-space scenes). The rendered depth is [`RenderedView::terminated_depth`]
+    /// (expected ray distance given termination), the normals the renormalised
+    /// rendered ones.
+    pub geometry: Option<GeometryMetrics>,
 }
 
-fn mean_of(values: impl Iterator<Item = Option<f32>>) -> Option<f32> {
-    let v: Vec<f32> = values.flatten().collect();
-    (!v.is_empty()).then(|| v.iter().sum::<f32>() / v.len() as f32)
+fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f32> {
+    let v: Vec<f64> = values.flatten().collect();
+    (!v.is_empty()).then(|| (v.iter().sum::<f64>() / v.len() as f64) as f32)
 }
 
 /// Compares a rendered view with the image and ground truth of `scene.views[v]`.
-pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> ViewEvaluation {
+pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> Result<ViewEvaluation, MetricsError> {
     let view = &scene.views[v];
-    let img = &view.image.data;
-    let mut se = 0.0f64;
-    for (p, px) in r.rgb.iter().enumerate() {
-        for c in 0..3 {
-            se += ((px[c] - img[3 * p + c]) as f64).powi(2);
+    let rgb: Vec<f32> = r.rgb.iter().flatten().copied().collect();
+    let image = image_metrics(r.width, r.height, &rgb, &view.image.data)?;
+    let gt_depth = view.depth.as_deref().filter(|_| scene.ndc.is_none());
+    let gt_normal = view.normal.as_deref();
+    let geometry = if gt_depth.is_some() || gt_normal.is_some() {
+        let depth = r.terminated_depth(scene.far);
+        let normal = r.unit_normals();
+        Some(evaluate_geometry(
+            &GeometryInputs {
+                width: r.width,
+                height: r.height,
+                gt_depth,
+                gt_normal,
+                depth: gt_depth.map(|_| depth.as_slice()),
+                normal: gt_normal.map(|_| normal.as_slice()),
+            },
+            &GeometryParams::default(),
+        )?)
+    } else {
+        None
+    };
+    Ok(ViewEvaluation { view: v, psnr: image.psnr as f32, ssim: image.ssim as f32, geometry })
+}
+
+impl Evaluation {
+    /// Means over `per_view`.
+    pub fn new(per_view: Vec<ViewEvaluation>) -> Evaluation {
+        let geo = || per_view.iter().filter_map(|e| e.geometry.as_ref());
+        let depth = |f: fn(&Regions<DepthErrors>) -> Option<f64>| mean_of(geo().map(|g| g.depth.as_ref().and_then(f)));
+        let normal = |f: fn(&Regions<NormalErrors>) -> Option<f64>| mean_of(geo().map(|g| g.normal.as_ref().and_then(f)));
+        Evaluation {
+            mean_psnr: mean_of(per_view.iter().map(|e| Some(e.psnr as f64))).unwrap_or(0.0),
+            mean_ssim: mean_of(per_view.iter().map(|e| Some(e.ssim as f64))).unwrap_or(0.0),
+            mean_depth_abs_error: depth(|d| d.all.map(|e| e.abs)),
+            mean_depth_abs_error_non_edge: depth(|d| d.non_edge.map(|e| e.abs)),
+            mean_depth_abs_error_edge: depth(|d| d.edge.map(|e| e.abs)),
+            mean_depth_abs_rel: depth(|d| d.all.map(|e| e.abs_rel)),
+            mean_normal_angle_deg: normal(|n| n.all.map(|e| e.mean_deg)),
+            mean_normal_angle_deg_non_edge: normal(|n| n.non_edge.map(|e| e.mean_deg)),
+            mean_normal_angle_deg_edge: normal(|n| n.edge.map(|e| e.mean_deg)),
+            mean_dbe_accuracy: mean_of(geo().map(|g| g.boundary.as_ref().map(|b| b.accuracy))),
+            mean_dbe_completeness: mean_of(geo().map(|g| g.boundary.as_ref().map(|b| b.completeness))),
+            per_view,
         }
     }
-    let mse = se / (3 * r.rgb.len()).max(1) as f64;
-    let depth_abs_error = view.depth.as_ref().filter(|_| scene.ndc.is_none()).and_then(|gt| {
-        let errs: Vec<f64> =
-            gt.iter().zip(&r.terminated_depth(scene.far)).filter(|(g, _)| **g > 0.0).map(|(g, d)| (*d - *g).abs() as f64).collect();
-        (!errs.is_empty()).then(|| (errs.iter().sum::<f64>() / errs.len() as f64) as f32)
-    });
-    let normal_angle_deg = view.normal.as_ref().and_then(|gt| {
-        let unit = r.unit_normals();
-        let angles: Vec<f64> = gt
-            .iter()
-            .zip(&unit)
-            .filter(|(g, _)| g.iter().any(|&c| c != 0.0))
-            .map(|(g, n)| {
-                let dot = (g[0] * n[0] + g[1] * n[1] + g[2] * n[2]).clamp(-1.0, 1.0);
-                (dot as f64).acos().to_degrees()
-            })
-            .collect();
-        (!angles.is_empty()).then(|| (angles.iter().sum::<f64>() / angles.len() as f64) as f32)
-    });
-    ViewEvaluation { view: v, psnr: psnr(mse as f32), depth_abs_error, normal_angle_deg }
 }
 
 /// The optimisation loop of one run.
@@ -472,17 +506,8 @@ pub fn evaluate(gpu: &Gpu, model: &mut Model, scene: &Scene) -> Result<(Evaluati
     let mut renders = Vec::new();
     for &v in &scene.split.test {
         let r = model.render_view(gpu, scene, v)?;
-        per_view.push(evaluate_view(scene, v, &r));
+        per_view.push(evaluate_view(scene, v, &r)?);
         renders.push((v, r));
     }
-    let mean_psnr = mean_of(per_view.iter().map(|e| Some(e.psnr))).unwrap_or(0.0);
-    Ok((
-        Evaluation {
-            mean_psnr,
-            mean_depth_abs_error: mean_of(per_view.iter().map(|e| e.depth_abs_error)),
-            mean_normal_angle_deg: mean_of(per_view.iter().map(|e| e.normal_angle_deg)),
-            per_view,
-        },
-        renders,
-    ))
+    Ok((Evaluation::new(per_view), renders))
 }

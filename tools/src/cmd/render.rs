@@ -68,22 +68,37 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
     }
     let fmt = |x: Option<f32>, unit: &str| x.map_or("-".to_string(), |x| format!("{x:.3}{unit}"));
     for e in &eval.per_view {
+        let depth = e.geometry.as_ref().and_then(|g| g.depth.as_ref()).and_then(|d| d.all).map(|d| d.abs as f32);
+        let normal = e.geometry.as_ref().and_then(|g| g.normal.as_ref()).and_then(|n| n.all).map(|n| n.mean_deg as f32);
         println!(
-            "test view {:>3} ({}): PSNR {:.2} dB  depth error {}  normal error {}",
+            "test view {:>3} ({}): PSNR {:.2} dB  SSIM {:.3}  depth error {}  normal error {}",
             e.view,
             trainer.scene.views[e.view].name,
             e.psnr,
-            fmt(e.depth_abs_error, ""),
-            fmt(e.normal_angle_deg, " deg")
+            e.ssim,
+            fmt(depth, ""),
+            fmt(normal, " deg")
         );
     }
     println!(
-        "test PSNR {:.2} dB (mean over {} views); mean depth error {}; mean normal error {}",
+        "test PSNR {:.2} dB, SSIM {:.3} (mean over {} views)",
         eval.mean_psnr,
+        eval.mean_ssim,
         eval.per_view.len(),
-        fmt(eval.mean_depth_abs_error, ""),
-        fmt(eval.mean_normal_angle_deg, " deg")
     );
+    if eval.mean_depth_abs_error.is_some() || eval.mean_normal_angle_deg.is_some() {
+        println!(
+            "geometry vs ground truth: depth error {} (non-edge {}, within the GT edge band {}); normal error {} (non-edge {}, edge {}); depth boundary error acc {} comp {} px",
+            fmt(eval.mean_depth_abs_error, ""),
+            fmt(eval.mean_depth_abs_error_non_edge, ""),
+            fmt(eval.mean_depth_abs_error_edge, ""),
+            fmt(eval.mean_normal_angle_deg, " deg"),
+            fmt(eval.mean_normal_angle_deg_non_edge, " deg"),
+            fmt(eval.mean_normal_angle_deg_edge, " deg"),
+            fmt(eval.mean_dbe_accuracy, ""),
+            fmt(eval.mean_dbe_completeness, ""),
+        );
+    }
     std::fs::write(dir.join("metrics.json"), serde_json::to_string_pretty(&eval)?)?;
     Ok(())
 }

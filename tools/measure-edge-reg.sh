@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# EdgeNeRF's regularizers on 3-view training, same steps per variant:
+#   edge   : edge-guided L_z + L_n (Canny edges), the method
+#   none   : no regularizer (same patch batches)
+#   global : the same regularizers without an edge mask (--edges none), the global
+#            smoothing the paper argues against
+# Per scene and variant: test PSNR / SSIM, mean depth error overall, in non-edge
+# regions and within the GT edge band (2 px of a GT depth/normal discontinuity), the
+# iBims-1 depth boundary error, mean normal angle, and training time.
+#   tools/measure-edge-reg.sh [CONFIG] [SCENE_DIR...]   (release build; runs/edge-reg/)
+# SCENE_DIR defaults to every committed synthetic scene; pass ../shared/data/llff/fern
+# for LLFF (no ground-truth geometry there: PSNR/SSIM only).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+config=${1:-tools/configs/sparse-small.toml}; shift || true
+scenes=("$@")
+[ ${#scenes[@]} -gt 0 ] || scenes=(synthetic-scenes/small/{smooth,creases,occlusion,texture,thin,table,turntable})
+views=${VIEWS:-3}
+mkdir -p runs/edge-reg
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
+cargo build --release -q -p edgenerf-tools
+bin=target/release/edgenerf
+declare -A flags=([edge]="" [none]="--no-depth-reg --no-normal-reg" [global]="--edges none")
+for dir in "${scenes[@]}"; do
+    s=$(basename "$dir")
+    for v in none edge global; do
+        out=runs/edge-reg/$s-$v
+        if [ -f "$out/test/metrics.json" ]; then continue; fi
+        rm -rf "$out"
+        # shellcheck disable=SC2086
+        $bin train "$dir" --views "$views" --config "$config" --out "$out" ${flags[$v]} >"$out.log" 2>&1 \
+            || { echo "$s $v failed: see $out.log"; continue; }
+    done
+done
+python3 - "${scenes[@]}" <<'PY'
+import csv, json, os, sys
+f = lambda x, d=3: "-" if x is None else f"{x:.{d}f}"
+print(f"{'scene':<10} {'variant':<7} {'psnr':>6} {'ssim':>6} {'depth':>7} {'d_nonedge':>9} {'d_edge2px':>9} {'dbe_acc':>7} {'dbe_comp':>8} {'normal':>7} {'train_s':>7}")
+for d in sys.argv[1:]:
+    s = os.path.basename(d.rstrip("/"))
+    for v in ["none", "edge", "global"]:
+        out = f"runs/edge-reg/{s}-{v}"
+        try:
+            m = json.load(open(f"{out}/test/metrics.json"))
+            rows = list(csv.DictReader(open(f"{out}/log.csv")))
+        except OSError:
+            print(f"{s:<10} {v:<7} (missing: see {out}.log)")
+            continue
+        t = float(rows[-1]["elapsed_s"])
+        print(f"{s:<10} {v:<7} {m['mean_psnr']:6.2f} {m['mean_ssim']:6.3f} {f(m['mean_depth_abs_error']):>7} "
+              f"{f(m['mean_depth_abs_error_non_edge']):>9} {f(m['mean_depth_abs_error_edge']):>9} "
+              f"{f(m['mean_dbe_accuracy'], 2):>7} {f(m['mean_dbe_completeness'], 2):>8} {f(m['mean_normal_angle_deg'], 1):>7} {t:7.0f}")
+PY
