@@ -4,9 +4,11 @@
 //!
 //! Rooms (see `ARCHITECTURE.md` in the repository's docs):
 //! * [`gpu`]: adapter selection, buffers, kernels and dispatch;
-//! * [`data`]: scenes, cameras, dataset formats and splits.
+//! * [`data`]: scenes, cameras, dataset formats and splits;
+//! * [`edges`]: edge masks of the training images (Canny, external maps, dilation).
 
 pub mod data;
+pub mod edges;
 pub mod field;
 pub mod gpu;
 pub mod loss;

@@ -28,6 +28,8 @@ enum Command {
     Train(cmd::train::Args),
     /// Render views of a trained run: RGB, depth, normals, opacity.
     Render(cmd::render::Args),
+    /// Edge masks of a scene's views (what the edge-guided losses see), with overlays.
+    Edges(cmd::edges::Args),
     /// Synthetic ground-truth scenes (Mitsuba): render them.
     #[command(subcommand)]
     Scenes(cmd::scenes::Command),
@@ -54,6 +56,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => cmd::info::run(args, &gpu_opts),
         Command::Train(args) => cmd::train::run(args, &gpu_opts),
         Command::Render(args) => cmd::render::run(args, &gpu_opts),
+        Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
     }
 }

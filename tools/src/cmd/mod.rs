@@ -1,4 +1,5 @@
 //! One module per subcommand.
+pub mod edges;
 pub mod info;
 pub mod render;
 pub mod scenes;
