@@ -126,3 +126,34 @@ fn train_writes_its_run_directory_and_render_reads_it_back() {
     let n = std::fs::read_dir(&renders).unwrap().filter(|e| e.as_ref().unwrap().path().to_string_lossy().ends_with("_rgb.png")).count();
     assert_eq!(n, 8, "one render per test view");
 }
+
+#[test]
+fn train_with_edge_guided_regularizers_logs_each_term_and_caches_masks() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let config = repo().join("tools/configs/sparse-small.toml");
+    let run = |name: &str, extra: &[&str]| {
+        let dir = out.path().join(name);
+        let mut args = vec!["train", scene.to_str().unwrap(), "--views", "3", "--config", config.to_str().unwrap()];
+        args.extend_from_slice(&["--out", dir.to_str().unwrap(), "--iters", "2", "--no-eval"]);
+        args.extend_from_slice(extra);
+        let o = edgenerf(&args);
+        assert!(o.status.success(), "{}", text(&o));
+        let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+        let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+        let row: Vec<&str> = log.lines().nth(2).unwrap().split(',').collect();
+        let col = |k: &str| row[header.iter().position(|h| *h == k).unwrap_or_else(|| panic!("no {k} column"))].parse::<f64>().unwrap();
+        (dir, [col("loss_depth"), col("loss_normal"), col("lambda_depth"), col("lambda_normal")])
+    };
+    let (dir, v) = run("edge", &[]);
+    assert!(v[0] > 0.0 && v[1] > 0.0 && v[2] == 0.1 && v[3] == 0.1, "paper defaults, both terms measured: {v:?}");
+    let masks = std::fs::read_dir(dir.join("edges")).unwrap().filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "png")).count();
+    assert_eq!(masks, 3, "one cached mask per training view");
+    let (_, v) = run("official", &["--reg-variant", "official", "--no-depth-reg", "--edges", "none"]);
+    // L_z is still measured (weight 0) while L_n is on: a free monitor.
+    assert!(v[2] == 0.0 && v[3] == 0.01 && v[1] > 0.0, "official lambda3, depth off: {v:?}");
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("official/config.json")).unwrap()).unwrap();
+    assert_eq!(config["edges"]["source"], "none");
+    assert_eq!(config["reg"]["variant"], "official");
+}

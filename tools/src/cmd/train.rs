@@ -44,6 +44,9 @@ pub struct Args {
     /// lambda3, the weight of L_n (reg.lambda_normal; paper 0.1, 0.001 on DTU; official 0.01).
     #[arg(long)]
     lambda_normal: Option<f32>,
+    /// Edge maps for the regularizers' masks (edges.* in the config).
+    #[command(flatten)]
+    edges: crate::cmd::edges::EdgeArgs,
     /// Config file (TOML or JSON) with any subset of the run configuration.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -78,6 +81,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
             other => bail!("unknown backend {other}"),
         };
     }
+    args.edges.apply(&mut config.edges);
     if args.no_depth_reg {
         config.reg.depth = false;
     }
