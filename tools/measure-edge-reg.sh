@@ -8,6 +8,7 @@
 # regions and within the GT edge band (2 px of a GT depth/normal discontinuity), the
 # iBims-1 depth boundary error, mean normal angle, and training time.
 #   tools/measure-edge-reg.sh [CONFIG] [SCENE_DIR...]   (release build; runs/edge-reg/)
+# VARIANTS="none edge" runs a subset; finished runs are kept and not redone.
 # SCENE_DIR defaults to every committed synthetic scene; pass ../shared/data/llff/fern
 # for LLFF (no ground-truth geometry there: PSNR/SSIM only).
 set -euo pipefail
@@ -16,6 +17,7 @@ config=${1:-tools/configs/sparse-small.toml}; shift || true
 scenes=("$@")
 [ ${#scenes[@]} -gt 0 ] || scenes=(synthetic-scenes/small/{smooth,creases,occlusion,texture,thin,table,turntable})
 views=${VIEWS:-3}
+read -r -a variants <<<"${VARIANTS:-none edge global}"   # a subset, e.g. VARIANTS="none edge" 
 mkdir -p runs/edge-reg
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 cargo build --release -q -p edgenerf-tools
@@ -23,7 +25,7 @@ bin=target/release/edgenerf
 declare -A flags=([edge]="" [none]="--no-depth-reg --no-normal-reg" [global]="--edges none")
 for dir in "${scenes[@]}"; do
     s=$(basename "$dir")
-    for v in none edge global; do
+    for v in "${variants[@]}"; do
         out=runs/edge-reg/$s-$v
         if [ -f "$out/test/metrics.json" ]; then continue; fi
         rm -rf "$out"

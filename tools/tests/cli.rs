@@ -2,24 +2,13 @@
 //! short `train` that writes its run directory, `render` of the checkpoint, and clear
 //! errors for bad input.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::PathBuf;
+mod common;
 
-fn edgenerf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_edgenerf"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("run edgenerf")
-}
+use common::{edgenerf, repo, text};
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
 
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
+
 
 /// The real data directory, or `None` (with a message) when absent and not required.
 fn data_dir() -> Option<PathBuf> {

@@ -3,23 +3,15 @@
 //! with repeated view names, `--edges none`, and clear errors for a bad `--edges` dir.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn edgenerf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_edgenerf"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("run edgenerf")
-}
+use common::{edgenerf, repo, text};
+
 
 fn scene(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().join("synthetic-scenes/small").join(name)
+    repo().join("synthetic-scenes/small").join(name)
 }
 
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
 
 /// Width and height from a PNG's IHDR chunk.
 fn png_size(path: &Path) -> (u32, u32) {

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use edgenerf::data::{ImageRgb, LoadOptions, Scene};
+use edgenerf::data::ImageRgb;
 use edgenerf::edges::{EdgeConfig, EdgeMask, EdgeSource, Polarity, edge_masks, mask_stem};
 
 /// The edge options (flatten into a command with `#[command(flatten)]`). Each flag left
@@ -81,15 +81,12 @@ impl EdgeArgs {
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene directory (Blender/NeRF-synthetic, LLFF or DTU layout).
-    scene: PathBuf,
+    #[command(flatten)]
+    input: super::SceneArgs,
     /// Output directory: per view `<name>.png` (the mask: white = non-edge, black =
     /// edge) and `<name>_overlay.png` (the image dimmed, edges in yellow).
     #[arg(long)]
     out: PathBuf,
-    /// Number of training views of the sparse-view split (default: all).
-    #[arg(long, short = 'k')]
-    views: Option<usize>,
     /// Every view of the scene, not only the training views.
     #[arg(long)]
     all: bool,
@@ -98,8 +95,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let opts = LoadOptions { views: args.views, ..Default::default() };
-    let scene = Scene::load(&args.scene, &opts).with_context(|| format!("loading {}", args.scene.display()))?;
+    let scene = args.input.load()?;
     let mut cfg = EdgeConfig::default();
     args.edge.apply(&mut cfg);
     let views: Vec<usize> = if args.all { (0..scene.views.len()).collect() } else { scene.split.train.clone() };

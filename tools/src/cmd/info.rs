@@ -1,18 +1,14 @@
 //! `edgenerf info`: describe a scene directory and the Vulkan adapter in use.
 
-use std::path::PathBuf;
-
 use anyhow::Context;
-use edgenerf::data::{LoadOptions, Scene};
 use edgenerf::gpu::{Gpu, GpuOptions};
+
+use super::SceneArgs;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene directory (Blender/NeRF-synthetic, LLFF or DTU layout).
-    scene: PathBuf,
-    /// Number of training views of the sparse-view split (default: all).
-    #[arg(long, short = 'k')]
-    views: Option<usize>,
+    #[command(flatten)]
+    input: SceneArgs,
     /// Do not open the GPU (describe the scene only).
     #[arg(long)]
     no_gpu: bool,
@@ -28,13 +24,12 @@ fn ids(list: &[usize]) -> String {
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     // Images are loaded (not only headers) so that masks and ground truth are reported
     // as they will be seen by training.
-    let opts = LoadOptions { views: args.views, ..Default::default() };
-    let scene = Scene::load(&args.scene, &opts).with_context(|| format!("loading {}", args.scene.display()))?;
+    let scene = args.input.load()?;
     let (w, h) = scene.image_size();
     println!("scene       {}", scene.root.display());
     println!("format      {}", scene.format);
     println!("images      {} of {w}x{h}", scene.views.len());
-    let k = args.views.map_or("all".to_string(), |k| k.to_string());
+    let k = args.input.views.map_or("all".to_string(), |k| k.to_string());
     println!("train ids   {} ({k} views)", ids(&scene.split.train));
     println!("test ids    {} ({} views)", ids(&scene.split.test), scene.split.test.len());
     let space = if scene.ndc.is_some() { " (NDC)" } else { "" };

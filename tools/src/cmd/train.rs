@@ -14,14 +14,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene directory (Blender/NeRF-synthetic, LLFF or DTU layout).
-    scene: PathBuf,
+    #[command(flatten)]
+    input: super::SceneArgs,
     /// Run directory: config.json, log.csv, checkpoint.safetensors, test renders.
     #[arg(long)]
     out: PathBuf,
-    /// Training views of the sparse-view split (default: all).
-    #[arg(long, short = 'k')]
-    views: Option<usize>,
     /// Optimisation steps (train.iters).
     #[arg(long)]
     iters: Option<u64>,
@@ -68,9 +65,9 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
         Some(path) => RunConfig::from_file(path)?,
         None => RunConfig::default(),
     };
-    config.scene.path = args.scene.clone();
-    if args.views.is_some() {
-        config.scene.views = args.views;
+    config.scene.path = args.input.scene.clone();
+    if args.input.views.is_some() {
+        config.scene.views = args.input.views;
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
