@@ -238,3 +238,28 @@ fn edge_reg_end_to_end_paper_matches_finite_differences() {
 fn edge_reg_end_to_end_official_matches_finite_differences() {
     end_to_end(RegVariant::Official);
 }
+
+#[test]
+fn reg_config_defaults_schedule_and_variants() {
+    let c = RegConfig::default();
+    assert_eq!((c.lambda_depth, c.tau_depth, c.tau_normal, c.lambda_color), (0.1, 1e-4, 0.0, 1.0));
+    assert_eq!(c.lambda_normal_for(false), 0.1, "paper, LLFF / synthetic");
+    assert_eq!(c.lambda_normal_for(true), 0.001, "paper, DTU");
+    let official = RegConfig { variant: RegVariant::Official, ..c.clone() };
+    assert_eq!((official.lambda_normal_for(false), official.lambda_normal_for(true)), (0.01, 0.01));
+    assert_eq!(RegConfig { lambda_normal: Some(0.5), ..c.clone() }.lambda_normal_for(true), 0.5, "explicit wins");
+
+    // Off before start_step, then a linear ramp over warmup_steps.
+    let ramp = RegConfig { start_step: 10, warmup_steps: 4, ..c.clone() };
+    assert!(ramp.weights_at(9, false).is_none());
+    let w: Vec<f32> = (10..16).map(|s| ramp.weights_at(s, false).unwrap().lambda_depth).collect();
+    let want = [0.025, 0.05, 0.075, 0.1, 0.1, 0.1];
+    assert!(w.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{w:?}");
+    // Switches.
+    let depth_only = RegConfig { normal: false, ..c.clone() };
+    assert_eq!(depth_only.weights_at(0, false).unwrap().lambda_normal, 0.0);
+    let off = RegConfig { normal: false, depth: false, ..c.clone() };
+    assert!(off.weights_at(0, false).is_none() && !off.any(false));
+    assert!(RegConfig { lambda_depth: -1.0, ..c.clone() }.validate().is_err());
+    assert!(RegConfig { tau_normal: f32::NAN, ..c }.validate().is_err());
+}
