@@ -4,6 +4,8 @@
 #   none   : no regularizer (same patch batches)
 #   global : the same regularizers without an edge mask (--edges none), the global
 #            smoothing the paper argues against
+#   official (only when asked, VARIANTS="... official"): edge-guided, the authors'
+#            code variant (stop-gradient means, unhinged L_n averaged, lambda3 0.01)
 # Per scene and variant: test PSNR / SSIM, mean depth error overall, in non-edge
 # regions and within the GT edge band (2 px of a GT depth/normal discontinuity), the
 # iBims-1 depth boundary error, mean normal angle, and training time.
@@ -22,7 +24,7 @@ mkdir -p runs/edge-reg
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 cargo build --release -q -p edgenerf-tools
 bin=target/release/edgenerf
-declare -A flags=([edge]="" [none]="--no-depth-reg --no-normal-reg" [global]="--edges none")
+declare -A flags=([edge]="" [none]="--no-depth-reg --no-normal-reg" [global]="--edges none" [official]="--reg-variant official")
 for dir in "${scenes[@]}"; do
     s=$(basename "$dir")
     for v in "${variants[@]}"; do
@@ -40,12 +42,14 @@ f = lambda x, d=3: "-" if x is None else f"{x:.{d}f}"
 print(f"{'scene':<10} {'variant':<7} {'psnr':>6} {'ssim':>6} {'depth':>7} {'d_nonedge':>9} {'d_edge2px':>9} {'dbe_acc':>7} {'dbe_comp':>8} {'normal':>7} {'train_s':>7}")
 for d in sys.argv[1:]:
     s = os.path.basename(d.rstrip("/"))
-    for v in ["none", "edge", "global"]:
+    for v in ["none", "edge", "global", "official"]:
+        if not os.path.isdir(f"runs/edge-reg/{s}-{v}"):
+            continue
         out = f"runs/edge-reg/{s}-{v}"
         try:
             m = json.load(open(f"{out}/test/metrics.json"))
             rows = list(csv.DictReader(open(f"{out}/log.csv")))
-        except OSError:
+        except (OSError, KeyError, IndexError):
             print(f"{s:<10} {v:<7} (missing: see {out}.log)")
             continue
         t = float(rows[-1]["elapsed_s"])
