@@ -1,5 +1,5 @@
 //! Files a run writes for a rendered view: RGB PNG, depth EXR (`sum w t`) + colourised
-//! PNG (`depth / opacity` where opacity > 0.5),
+//! PNG (`depth / opacity` where opacity > 0.1),
 //! normals EXR + PNG, opacity PNG. Shared by `train` (final test renders) and `render`.
 
 use std::path::Path;
@@ -20,8 +20,10 @@ pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> anyhow::Result<()
     rgb.save_png(dir.join(format!("{name}_rgb.png")))?;
     save_depth_exr(dir.join(format!("{name}_depth.exr")), w, h, &r.depth)?;
     // The EXR holds sum_i w_i t_i; the picture shows the distance given termination
-    // (depth / opacity) where the ray is mostly opaque, black elsewhere.
-    let valid: Vec<bool> = r.opacity.iter().map(|&a| a > 0.5).collect();
+    // (depth / opacity) wherever the ray has some opacity, black where it has next to
+    // none (an early or forward-facing model is often only partly opaque; 0.5 hid most
+    // of an LLFF scene).
+    let valid: Vec<bool> = r.opacity.iter().map(|&a| a > 0.1).collect();
     let shown = r.terminated_depth(f32::INFINITY);
     viz::depth_image(w, h, &shown, Some(&valid)).0.save_png(dir.join(format!("{name}_depth.png")))?;
     save_normal_exr(dir.join(format!("{name}_normal.exr")), w, h, &r.normal)?;
