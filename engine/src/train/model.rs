@@ -110,12 +110,16 @@ impl Model {
     }
 
     /// Refreshes the occupancy grid from the field if `step` is an update step (or
-    /// `force`). Returns what the update did.
+    /// `force`). Returns what the update did. A forced update (resume, rendering a
+    /// checkpoint: the grid starts empty) refreshes every cell, as the warm-up does;
+    /// past the warm-up a regular update visits only a quarter of the cells plus the
+    /// occupied ones, which would leave most of an empty grid empty.
     pub fn update_grid(&mut self, gpu: &Gpu, step: u64, seed: u32, force: bool) -> Result<Option<GridUpdate>, TrainError> {
         if self.config.sampler.mode == SamplerMode::Uniform || !(force || self.grid.should_update(step as u32)) {
             return Ok(None);
         }
-        let query = self.grid.query_points(gpu, step as u32, seed)?;
+        let query_step = if force { 0 } else { step as u32 };
+        let query = self.grid.query_points(gpu, query_step, seed)?;
         if self.grid_densities.as_ref().is_none_or(|b| b.len() < query.count as usize) {
             self.grid_densities = Some(GpuBuffer::zeros(gpu, "grid densities", query.positions.len())?);
         }
