@@ -29,23 +29,13 @@ pub fn turbo(t: f32) -> [f32; 3] {
     [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
 }
 
-/// The `q` quantile (0..1) of `values` (NaNs ignored); `None` if empty.
-fn quantile(values: &mut Vec<f32>, q: f32) -> Option<f32> {
-    values.retain(|v| v.is_finite());
-    if values.is_empty() {
-        return None;
-    }
-    let k = ((values.len() - 1) as f32 * q).round() as usize;
-    Some(*values.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1)
-}
-
 /// Depth colourised near = blue .. far = red over the robust range of the pixels
 /// where `valid` (all when `None`); invalid pixels black. Returns the range used.
 pub fn depth_image(width: u32, height: u32, depth: &[f32], valid: Option<&[bool]>) -> (ImageRgb, [f32; 2]) {
     let is_valid = |i: usize| valid.is_none_or(|v| v[i]) && depth[i].is_finite();
-    let mut vals: Vec<f32> = (0..depth.len()).filter(|&i| is_valid(i)).map(|i| depth[i]).collect();
-    let lo = quantile(&mut vals.clone(), 0.02).unwrap_or(0.0);
-    let hi = quantile(&mut vals, 0.98).unwrap_or(1.0);
+    let mut vals: Vec<f64> = (0..depth.len()).filter(|&i| is_valid(i)).map(|i| depth[i] as f64).collect();
+    let lo = crate::metrics::quantile(&mut vals, 0.02).unwrap_or(0.0) as f32;
+    let hi = crate::metrics::quantile(&mut vals, 0.98).unwrap_or(1.0) as f32;
     let span = (hi - lo).max(1e-6);
     let mut img = ImageRgb::new(width, height);
     for (i, &d) in depth.iter().enumerate() {

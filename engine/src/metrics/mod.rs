@@ -64,7 +64,7 @@ impl MetricsError {
 
 /// Numpy's `quantile(values, q)` (linear interpolation between the two nearest ranks,
 /// `q` in `[0, 1]`); `None` when empty. Sorts `values`.
-pub(crate) fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
+pub fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
     if values.is_empty() {
         return None;
     }

@@ -278,7 +278,7 @@ impl Trainer {
             return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
         }
         let patches = config.train.batch == BatchKind::Patches;
-        if patches && (config.train.rays_per_batch % 4 != 0 || config.train.rays_per_batch == 0) {
+        if patches && (!config.train.rays_per_batch.is_multiple_of(4) || config.train.rays_per_batch == 0) {
             return Err(config_error(format!(
                 "train.rays_per_batch = {} must be a positive multiple of 4 with patch batches (4 rays per 2x2 patch)",
                 config.train.rays_per_batch
@@ -289,7 +289,6 @@ impl Trainer {
         {
             return Err(config_error(format!("{} edge masks for {} training views", m.len(), scene.split.train.len())));
         }
-        let edge_masks = masks;
         let model = Model::new(&gpu, &scene, config.clone())?;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
         let n = config.train.rays_per_batch;
@@ -303,7 +302,7 @@ impl Trainer {
             grad_norm: GradNorm::new(&gpu)?,
             photometric: Photometric::new(&gpu, n)?,
             edge_reg: EdgeReg::new(&gpu, n / 4)?,
-            edge_masks,
+            edge_masks: masks,
             bufs: BatchBuffers::new(&gpu, n, capacity)?,
             targets: GpuBuffer::zeros(&gpu, "targets", n as usize)?,
             d_rays: GpuBuffer::zeros(&gpu, "d rays", n as usize)?,
