@@ -284,10 +284,16 @@ impl Trainer {
                 config.train.rays_per_batch
             )));
         }
-        if let Some(m) = &masks
-            && m.len() != scene.split.train.len()
-        {
-            return Err(config_error(format!("{} edge masks for {} training views", m.len(), scene.split.train.len())));
+        if let Some(m) = &masks {
+            let (w, h) = scene.image_size();
+            if m.len() != scene.split.train.len() || m.iter().any(|m| (m.width, m.height) != (w, h)) {
+                return Err(config_error(format!(
+                    "{} edge masks given for {} training views of {w}x{h} (sizes {:?})",
+                    m.len(),
+                    scene.split.train.len(),
+                    m.iter().map(|m| (m.width, m.height)).collect::<Vec<_>>()
+                )));
+            }
         }
         let model = Model::new(&gpu, &scene, config.clone())?;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
