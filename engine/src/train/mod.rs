@@ -11,9 +11,10 @@
 //! zero grads -> field backward (second order through the normals when L_n is on)
 //!   -> grad norm / NaN check / clip -> Adam (GPU)
 //! ```
-//! The total loss is `L_c + lambda2 L_z + lambda3 L_n` (see [`crate::loss::edge_reg`]);
-//! the edge masks of the training views are computed once when the trainer is built
-//! (or given by the caller, e.g. from a cache next to the run).
+//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n` (see
+//! [`crate::loss::edge_reg`]); the edge masks of the training views are given by the
+//! caller (e.g. from a cache next to the run) or computed once, at the first step that
+//! draws patches, so rendering a checkpoint never computes them.
 //! The host reads back one small set of numbers per step (the batch's squared errors,
 //! the gradient statistics and the sample count) for logging and the NaN guard.
 //!
