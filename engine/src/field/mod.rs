@@ -24,8 +24,10 @@
 //! * GPU work is queued, never waited for (readbacks wait).
 
 pub mod grid;
+pub mod mlp;
 
 pub use grid::{DensityActivation, GridConfig, GridField};
+pub use mlp::{MlpConfig, PositionEncoding};
 
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 pub use crate::optim::ParamGroup;

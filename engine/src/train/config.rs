@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::edges::EdgeConfig;
-use crate::field::GridConfig;
+use crate::field::{GridConfig, MlpConfig};
 use crate::loss::RegConfig;
-use crate::optim::OptimConfig;
+use crate::optim::{LrSchedule, OptimConfig};
 use crate::render::RenderConfig;
 use crate::sampler::SamplerConfig;
 
@@ -105,8 +105,22 @@ pub enum BatchKind {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Backend {
+    /// Hash grid + tiny MLPs (Instant-NGP style; `field.*`).
     #[default]
     Grid,
+    /// mip-NeRF / RegNeRF MLP (`mlp.*`).
+    Mlp,
+}
+
+impl std::str::FromStr for Backend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "grid" => Ok(Backend::Grid),
+            "mlp" => Ok(Backend::Mlp),
+            other => Err(format!("unknown backend {other:?} (expected grid or mlp)")),
+        }
+    }
 }
 
 /// Everything a run depends on.
@@ -115,7 +129,10 @@ pub enum Backend {
 pub struct RunConfig {
     pub backend: Backend,
     pub scene: SceneConfig,
+    /// The hash-grid field (backend `grid`).
     pub field: GridConfig,
+    /// The MLP field (backend `mlp`).
+    pub mlp: MlpConfig,
     pub sampler: SamplerConfig,
     pub render: RenderConfig,
     pub optim: OptimConfig,
@@ -127,16 +144,55 @@ pub struct RunConfig {
 }
 
 impl RunConfig {
-    /// Reads a `.toml` or `.json` config file.
-    pub fn from_file(path: &Path) -> Result<RunConfig, TrainError> {
+    /// The defaults of a backend: the grid's are [`RunConfig::default`]; the MLP's
+    /// optimizer is RegNeRF's ([`OptimConfig::regnerf`]: Adam 0.9/0.999/1e-8, lr 2e-3
+    /// -> 2e-5 log-linear over the run's `train.iters` (see [`RunConfig::resolve`]),
+    /// 512 warm-up steps, clipping).
+    pub fn defaults_for(backend: Backend) -> RunConfig {
+        let mut c = RunConfig { backend, ..RunConfig::default() };
+        if backend == Backend::Mlp {
+            c.optim = OptimConfig::regnerf(FOLLOW_ITERS);
+        }
+        c
+    }
+
+    /// Reads a `.toml` or `.json` config file over the defaults of its backend (the
+    /// file's `backend`, else `backend`, else the grid). `backend`, when given, wins
+    /// over the file's.
+    pub fn from_file_for(path: &Path, backend: Option<Backend>) -> Result<RunConfig, TrainError> {
         let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
         let is_toml = path.extension().is_some_and(|e| e == "toml");
-        let parsed = if is_toml {
-            toml::from_str(&text).map_err(|e| e.to_string())
+        let bad = |message: String| TrainError::Config { source_name: path.display().to_string(), message };
+        let mut file: serde_json::Value = if is_toml {
+            toml::from_str(&text).map_err(|e| bad(e.to_string()))?
         } else {
-            serde_json::from_str(&text).map_err(|e| e.to_string())
+            serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?
         };
-        parsed.map_err(|message| TrainError::Config { source_name: path.display().to_string(), message })
+        if let (Some(b), Some(obj)) = (backend, file.as_object_mut()) {
+            obj.insert("backend".into(), serde_json::to_value(b).expect("backends serialize"));
+        }
+        let backend = match file.get("backend") {
+            Some(b) => serde_json::from_value(b.clone()).map_err(|e| bad(format!("backend: {e}")))?,
+            None => Backend::Grid,
+        };
+        let mut merged = serde_json::to_value(RunConfig::defaults_for(backend)).expect("configs serialize");
+        merge_json(&mut merged, file);
+        serde_json::from_value(merged).map_err(|e| bad(e.to_string()))
+    }
+
+    /// [`RunConfig::from_file_for`] with the file's own backend.
+    pub fn from_file(path: &Path) -> Result<RunConfig, TrainError> {
+        RunConfig::from_file_for(path, None)
+    }
+
+    /// Fills in what depends on other settings: a log-linear schedule with
+    /// `max_steps = 0` decays over `train.iters`. Idempotent; the trainer calls it.
+    pub fn resolve(&mut self) {
+        if let LrSchedule::LogLinear { max_steps, .. } = &mut self.optim.schedule
+            && *max_steps == FOLLOW_ITERS
+        {
+            *max_steps = self.train.iters.max(1);
+        }
     }
 
     /// Applies an override `dotted.key=value`; `value` is parsed as JSON (numbers,
@@ -191,6 +247,28 @@ impl RunConfig {
     }
 }
 
+/// `max_steps` of a log-linear schedule that follows `train.iters` ([`RunConfig::resolve`]).
+pub const FOLLOW_ITERS: u64 = 0;
+
+/// Overwrites `base` with every key of `over`, recursing into tables (a config file
+/// over defaults: keys the file does not name keep the default).
+fn merge_json(base: &mut serde_json::Value, over: serde_json::Value) {
+    match (base, over) {
+        (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    // A tagged enum (`kind = ...`) switching variant is replaced whole.
+                    Some(slot) if slot.is_object() && v.is_object() && !(v.get("kind").is_some() && slot.get("kind") != v.get("kind")) => merge_json(slot, v),
+                    _ => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -209,6 +287,26 @@ mod tests {
         assert!(c.set("train.itres=1").is_err());
         assert!(c.set("train.iters=-1").is_err());
         assert!(c.set("noequals").is_err());
+    }
+
+    #[test]
+    fn mlp_backend_defaults_to_regnerf_optimizer_following_iters() {
+        let dir = std::env::temp_dir().join(format!("edgenerf-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("c.toml");
+        std::fs::write(&path, "backend = \"mlp\"\n[train]\niters = 300\n[mlp]\nwidth = 64\n").unwrap();
+        let mut c = RunConfig::from_file(&path).unwrap();
+        assert_eq!((c.backend, c.mlp.width, c.mlp.depth), (Backend::Mlp, 64, 8));
+        c.resolve();
+        assert_eq!(c.optim, OptimConfig::regnerf(300));
+        // A file that sets the schedule keeps it; the CLI's backend wins over the file's.
+        std::fs::write(&path, "[optim.schedule]\nkind = \"constant\"\nlr = 0.01\n").unwrap();
+        let c = RunConfig::from_file_for(&path, Some(Backend::Mlp)).unwrap();
+        assert_eq!((c.backend, &c.optim.schedule), (Backend::Mlp, &LrSchedule::Constant { lr: 0.01 }));
+        assert_eq!(c.optim.adam, OptimConfig::regnerf(1).adam);
+        std::fs::write(&path, "[train]\nbogus = 1\n").unwrap();
+        assert!(RunConfig::from_file(&path).is_err(), "unknown keys are still errors after the merge");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -271,7 +271,8 @@ impl Trainer {
 
     /// [`Trainer::new`] with the training views' edge masks given (`scene.split.train`
     /// order), e.g. read from a cache; `None`: computed here when needed.
-    pub fn with_edge_masks(gpu: Gpu, scene: Scene, config: RunConfig, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
+    pub fn with_edge_masks(gpu: Gpu, scene: Scene, mut config: RunConfig, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
+        config.resolve();
         config.optim.validate()?;
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
         config.reg.validate().map_err(config_error)?;

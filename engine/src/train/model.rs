@@ -100,6 +100,12 @@ impl Model {
     pub fn new(gpu: &Gpu, scene: &Scene, config: RunConfig) -> Result<Model, TrainError> {
         let field: Box<dyn Field> = match config.backend {
             Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
+            Backend::Mlp => {
+                return Err(TrainError::Config {
+                    source_name: "backend".into(),
+                    message: "the mlp backend is not available in this build yet".into(),
+                });
+            }
         };
         let grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;

@@ -22,8 +22,9 @@ pub struct Args {
     /// Optimisation steps (train.iters).
     #[arg(long)]
     iters: Option<u64>,
-    /// Field backend.
-    #[arg(long, value_parser = ["grid"])]
+    /// Field backend: the hash grid, or the mip-NeRF MLP (whose defaults include
+    /// RegNeRF's optimizer and schedule). Recorded in the checkpoint.
+    #[arg(long, value_parser = ["grid", "mlp"])]
     backend: Option<String>,
     /// Switch off the edge-guided depth regularizer L_z (reg.depth = false).
     #[arg(long)]
@@ -61,9 +62,11 @@ pub struct Args {
 }
 
 fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
+    // The backend first: its defaults (the MLP's RegNeRF optimizer) sit under the file.
+    let backend = args.backend.as_deref().map(str::parse::<Backend>).transpose().map_err(anyhow::Error::msg)?;
     let mut config = match &args.config {
-        Some(path) => RunConfig::from_file(path)?,
-        None => RunConfig::default(),
+        Some(path) => RunConfig::from_file_for(path, backend)?,
+        None => RunConfig::defaults_for(backend.unwrap_or_default()),
     };
     config.scene.path = args.input.scene.clone();
     if args.input.views.is_some() {
@@ -71,12 +74,6 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
-    }
-    if let Some(b) = &args.backend {
-        config.backend = match b.as_str() {
-            "grid" => Backend::Grid,
-            other => bail!("unknown backend {other}"),
-        };
     }
     args.edges.apply(&mut config.edges);
     if args.no_depth_reg {
@@ -97,6 +94,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     for o in &args.overrides {
         config.set(o)?;
     }
+    config.resolve();
     Ok(config)
 }
 
