@@ -30,6 +30,7 @@ pub mod boundary;
 pub mod distance;
 pub mod geometry;
 pub mod image;
+pub mod lpips;
 pub mod maps;
 
 pub use boundary::{DbeParams, DepthBoundaryError, depth_boundary_error, depth_boundary_error_from_edges};
@@ -38,6 +39,7 @@ pub use geometry::{
     evaluate_geometry, gt_edge_map, normal_errors,
 };
 pub use image::{ImageMetrics, image_metrics, masked_image_metrics, psnr, psnr_from_mse, ssim};
+pub use lpips::{Lpips, LpipsError, LpipsNet};
 
 /// Inputs a metric cannot be computed on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
