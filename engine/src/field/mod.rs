@@ -2,8 +2,9 @@
 //! analytic normal, with the exact backward pass to its parameters.
 //!
 //! Owns the backend-neutral [`Field`] trait and its backends: [`grid`] (multiresolution
-//! hash encoding + tiny MLPs, Instant-NGP style). A NeRF-MLP backend implements the
-//! same trait; nothing outside this room knows which backend runs.
+//! hash encoding + tiny MLPs, Instant-NGP style) and [`mlp`] (the mip-NeRF / RegNeRF
+//! MLP with tiled matrix kernels). Nothing outside this room knows which backend runs;
+//! `test_support` holds the helpers both backends' tests share.
 //!
 //! # Contract of a field (every backend)
 //! * Inputs are the [`SampleBatch`] of the sampler: one value per sample, dispatched
@@ -25,9 +26,11 @@
 
 pub mod grid;
 pub mod mlp;
+#[cfg(test)]
+pub(crate) mod test_support;
 
 pub use grid::{DensityActivation, GridConfig, GridField};
-pub use mlp::{MlpConfig, PositionEncoding};
+pub use mlp::{Footprint, MlpConfig, MlpField, PositionEncoding};
 
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 pub use crate::optim::ParamGroup;

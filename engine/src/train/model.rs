@@ -6,7 +6,7 @@
 //! field's own densities; rendering for images uses no jitter (deterministic output).
 
 use crate::data::Scene;
-use crate::field::{Field, GridField};
+use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::render::{Background, RenderOutputs, Renderer};
 use crate::sampler::{GridUpdate, March, OccupancyGrid, Sampler, SamplerMode};
@@ -87,6 +87,23 @@ pub struct Model {
     render_buffers: Option<BatchBuffers>,
 }
 
+/// The pixel footprint of the scene's training cameras, for the MLP's integrated
+/// encoding (mip-NeRF: a pixel is a disk of radius `2 / sqrt(12)` pixel widths):
+/// world scenes have cones of radius `t * 2 / (sqrt(12) fx)` (`fx` averaged over the
+/// training views); NDC maps every pixel to a cylinder of width `2 / W`. Density
+/// queries use the variance of a uniform distribution over an occupancy cell.
+pub fn footprint(scene: &Scene, sampler: &crate::sampler::SamplerConfig) -> Footprint {
+    let k = 2.0 / 12f32.sqrt();
+    let cams: Vec<_> = scene.split.train.iter().map(|&v| &scene.views[v].camera).collect();
+    let mean = |f: &dyn Fn(&crate::data::Camera) -> f32| cams.iter().map(|c| f(c)).sum::<f32>() / cams.len().max(1) as f32;
+    let (radius0, radius1) = match scene.ndc {
+        Some(_) => (k * mean(&|c| 2.0 / c.width as f32), 0.0),
+        None => (0.0, k * mean(&|c| 1.0 / c.fx)),
+    };
+    let cell = (scene.aabb[1] - scene.aabb[0]).max_element() / sampler.resolution.max(1) as f32;
+    Footprint { radius0, radius1, point_var: cell * cell / 12.0 }
+}
+
 /// The background a run renders over: the configured one, else the scene's, else black.
 pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
     match config.scene.background.or(scene.background) {
@@ -100,12 +117,7 @@ impl Model {
     pub fn new(gpu: &Gpu, scene: &Scene, config: RunConfig) -> Result<Model, TrainError> {
         let field: Box<dyn Field> = match config.backend {
             Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
-            Backend::Mlp => {
-                return Err(TrainError::Config {
-                    source_name: "backend".into(),
-                    message: "the mlp backend is not available in this build yet".into(),
-                });
-            }
+            Backend::Mlp => Box::new(MlpField::new(gpu, &config.mlp, scene.aabb, footprint(scene, &config.sampler))?),
         };
         let grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;

@@ -11,6 +11,7 @@ use glam::Vec3;
 use super::reference::{GridModel, Trace};
 use super::*;
 use crate::field::Field;
+use crate::field::test_support::*;
 use crate::gpu::{test_gpu, Gpu};
 use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
 
@@ -26,30 +27,6 @@ pub(crate) fn small_config() -> GridConfig {
         seed: 7,
         ..GridConfig::default()
     }
-}
-
-fn rng(seed: u64) -> SplitMix64 {
-    SplitMix64::new(seed)
-}
-
-fn unit(rng: &mut SplitMix64) -> f64 {
-    0.5 * (rng.uniform(1.0) + 1.0)
-}
-
-/// Random samples: mostly inside the box, every 9th outside it.
-fn random_samples(n: usize, seed: u64) -> Vec<GpuSample> {
-    let mut r = rng(seed);
-    (0..n)
-        .map(|i| {
-            let margin = if i % 9 == 4 { 0.3 } else { 0.0 };
-            let pos: [f32; 3] = std::array::from_fn(|d| {
-                let t = unit(&mut r) * (1.0 + 2.0 * margin) - margin;
-                AABB[0][d] + (AABB[1][d] - AABB[0][d]) * t as f32
-            });
-            let dir = Vec3::new(r.uniform(1.0) as f32, r.uniform(1.0) as f32, r.uniform(1.0) as f32 + 0.1).normalize();
-            GpuSample { pos, t: 1.0, dir: dir.to_array(), dt: 0.01 }
-        })
-        .collect()
 }
 
 /// Replaces the field's parameters with values large enough to exercise every
@@ -75,7 +52,7 @@ fn setup(cfg: &GridConfig, n: usize, capacity: u32, seed: u64, disable_float_ato
     let gpu = test_gpu(disable_float_atomics);
     let mut field = GridField::new(&gpu, cfg, AABB).unwrap();
     randomize(&gpu, &mut field, seed);
-    let samples = random_samples(n, seed + 1);
+    let samples = random_samples(AABB, n, seed + 1);
     let batch = SampleBatch::new(&gpu, 1, capacity).unwrap();
     batch.samples.write(&gpu, &samples);
     batch.count.write(&gpu, &[n as u32, n as u32]);
@@ -89,37 +66,16 @@ fn dir(s: &GpuSample) -> [f64; 3] {
     s.dir.map(f64::from)
 }
 
-/// Per-sample loss weights a (density), b (rgb), c (normal).
-struct LossWeights {
-    a: Vec<f32>,
-    b: Vec<[f32; 4]>,
-    c: Vec<[f32; 4]>,
+/// The grid's losses and reference gradients for [`LossWeights`].
+trait GridLoss {
+    fn loss_of(&self, i: usize, t: &Trace) -> f64;
+    fn loss(&self, m: &GridModel, samples: &[GpuSample]) -> f64;
+    fn cpu_grads(&self, m: &GridModel, samples: &[GpuSample], normal_grads: bool) -> reference::Grads;
 }
 
-impl LossWeights {
-    fn random(n: usize, seed: u64, wa: f32, wb: f32, wc: f32) -> Self {
-        let mut r = rng(seed);
-        let mut v = |s: f32| r.uniform(1.0) as f32 * s;
-        let a = (0..n).map(|_| v(wa)).collect();
-        let b = (0..n).map(|_| [v(wb), v(wb), v(wb), 0.0]).collect();
-        let c = (0..n).map(|_| [v(wc), v(wc), v(wc), 0.0]).collect();
-        Self { a, b, c }
-    }
-
-    fn upload(&self, gpu: &Gpu, capacity: u32) -> FieldOutputs {
-        let g = FieldOutputs::new(gpu, capacity).unwrap();
-        g.density.write(gpu, &self.a);
-        g.rgb.write(gpu, &self.b);
-        g.normal.write(gpu, &self.c);
-        g
-    }
-
+impl GridLoss for LossWeights {
     fn loss_of(&self, i: usize, t: &Trace) -> f64 {
-        let mut l = self.a[i] as f64 * t.sigma;
-        for d in 0..3 {
-            l += self.b[i][d] as f64 * t.rgb[d] + self.c[i][d] as f64 * t.normal[d];
-        }
-        l
+        self.weighted(i, t.sigma, t.rgb, t.normal)
     }
 
     fn loss(&self, m: &GridModel, samples: &[GpuSample]) -> f64 {
@@ -135,43 +91,6 @@ impl LossWeights {
         }
         g
     }
-}
-
-/// `|got - want| <= atol + rtol |want|` elementwise with `atol = rel_of_max * max|want|`.
-fn assert_close(what: &str, got: &[f64], want: &[f64], rel_of_max: f64, rtol: f64) {
-    assert_eq!(got.len(), want.len(), "{what}: lengths");
-    let max = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let atol = rel_of_max * max.max(1e-30);
-    let mut worst = (0.0, 0usize);
-    for (i, (g, w)) in got.iter().zip(want).enumerate() {
-        let err = (g - w).abs() / (atol + rtol * w.abs());
-        if err.is_nan() || err > worst.0 {
-            worst = (err, i);
-        }
-    }
-    let i = worst.1;
-    assert!(
-        worst.0 <= 1.0,
-        "{what}: element {i}: got {} want {} (max |want| {max:e}, {} elements)",
-        got[i],
-        want[i],
-        want.len()
-    );
-}
-
-fn to_f64(v: &[f32]) -> Vec<f64> {
-    v.iter().map(|&x| x as f64).collect()
-}
-
-/// Central difference of `f` w.r.t. `params[idx]`.
-fn central_diff(params: &mut [f64], idx: usize, eps: f64, mut f: impl FnMut(&[f64]) -> f64) -> f64 {
-    let old = params[idx];
-    params[idx] = old + eps;
-    let lp = f(params);
-    params[idx] = old - eps;
-    let lm = f(params);
-    params[idx] = old;
-    (lp - lm) / (2.0 * eps)
 }
 
 fn scratch_rows(s: &Setup, r: usize) -> (Vec<[f32; 4]>, usize) {
@@ -255,7 +174,7 @@ fn field_grid_encoding_reference_matches_finite_differences() {
     randomize(&gpu, &mut field, 3);
     let m = field.reference(&gpu).unwrap();
     let mut table = m.table.clone();
-    let samples = random_samples(24, 5);
+    let samples = random_samples(AABB, 24, 5);
     let eps = 1e-7;
     for s in samples.iter().filter(|s| m.to_unit(pos(s)).1) {
         let x = pos(s);
@@ -644,7 +563,7 @@ fn field_grid_throughput() {
     let cfg = GridConfig::default();
     let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
     let n = 1usize << 16;
-    let samples = random_samples(n, 1);
+    let samples = random_samples(AABB, n, 1);
     let batch = SampleBatch::new(&gpu, 1, n as u32).unwrap();
     batch.samples.write(&gpu, &samples);
     batch.count.write(&gpu, &[n as u32, n as u32]);
