@@ -3,6 +3,9 @@
 
 mod cmd;
 mod output;
+mod plot;
+mod report;
+mod suite;
 
 use clap::{Parser, Subcommand};
 
@@ -28,6 +31,10 @@ enum Command {
     Train(cmd::train::Args),
     /// Render views of a trained run: RGB, depth, normals, opacity.
     Render(cmd::render::Args),
+    /// Every image and geometry metric of a trained run, with error maps.
+    Eval(cmd::eval::Args),
+    /// Run a benchmark suite (scenes x configurations), then write results and a report.
+    Bench(cmd::bench::Args),
     /// Edge masks of a scene's views (what the edge-guided losses see), with overlays.
     Edges(cmd::edges::Args),
     /// Synthetic ground-truth scenes (Mitsuba): render them.
@@ -56,6 +63,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => cmd::info::run(args, &gpu_opts),
         Command::Train(args) => cmd::train::run(args, &gpu_opts),
         Command::Render(args) => cmd::render::run(args, &gpu_opts),
+        Command::Eval(args) => cmd::eval::run(args, &gpu_opts),
+        Command::Bench(args) => cmd::bench::run(args, cli.adapter.as_deref()),
         Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
     }

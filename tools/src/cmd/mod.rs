@@ -1,5 +1,7 @@
 //! One module per subcommand.
+pub mod bench;
 pub mod edges;
+pub mod eval;
 pub mod info;
 pub mod render;
 pub mod scenes;

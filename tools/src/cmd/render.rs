@@ -25,26 +25,8 @@ pub struct Args {
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
-    let path = if args.checkpoint.is_dir() { args.checkpoint.join("checkpoint.safetensors") } else { args.checkpoint.clone() };
-    let mut ckpt = Checkpoint::load(&path)?;
-    if let Some(scene) = &args.scene {
-        ckpt.config.scene.path = scene.clone();
-    }
-    let mut opts = LoadOptions { views: ckpt.config.scene.views, ..Default::default() };
-    if let Some(bg) = ckpt.config.scene.background {
-        opts.background = bg;
-    }
-    let scene_path = ckpt.config.scene.path.clone();
-    let scene = Scene::load(&scene_path, &opts)
-        .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
-    let gpu = Gpu::new(gpu_opts)?;
-    let mut trainer = Trainer::resume(gpu, scene, ckpt, None)?;
-    let views: Vec<usize> = match args.split.as_str() {
-        "test" => trainer.scene.split.test.clone(),
-        "train" => trainer.scene.split.train.clone(),
-        "all" => (0..trainer.scene.views.len()).collect(),
-        other => bail!("unknown split {other}"),
-    };
+    let mut trainer = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
+    let views = split_views(&trainer.scene, &args.split)?;
     if args.split == "test" {
         return evaluate_and_write(&mut trainer, &args.out);
     }
@@ -57,6 +39,36 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     bar.finish();
     eprintln!("wrote renders to {}", args.out.display());
     Ok(())
+}
+
+/// A trained run ready to render: the checkpoint (a file, or a run directory holding
+/// `checkpoint.safetensors`), its scene (the path recorded in its config, or `scene`),
+/// on the GPU. Shared by `render` and `eval`.
+pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) -> anyhow::Result<Trainer> {
+    let path = if checkpoint.is_dir() { checkpoint.join("checkpoint.safetensors") } else { checkpoint.to_path_buf() };
+    let mut ckpt = Checkpoint::load(&path)?;
+    if let Some(scene) = scene {
+        ckpt.config.scene.path = scene.to_path_buf();
+    }
+    let mut opts = LoadOptions { views: ckpt.config.scene.views, ..Default::default() };
+    if let Some(bg) = ckpt.config.scene.background {
+        opts.background = bg;
+    }
+    let scene_path = ckpt.config.scene.path.clone();
+    let scene = Scene::load(&scene_path, &opts)
+        .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
+    let gpu = Gpu::new(gpu_opts)?;
+    Ok(Trainer::resume(gpu, scene, ckpt, None)?)
+}
+
+/// The view indices of a split name: `test`, `train` or `all`.
+pub fn split_views(scene: &Scene, split: &str) -> anyhow::Result<Vec<usize>> {
+    Ok(match split {
+        "test" => scene.split.test.clone(),
+        "train" => scene.split.train.clone(),
+        "all" => (0..scene.views.len()).collect(),
+        other => bail!("unknown split {other} (test, train or all)"),
+    })
 }
 
 /// Renders the test views, writes them under `dir`, prints per-view and mean PSNR and

@@ -1,0 +1,328 @@
+//! `edgenerf eval`: every image and geometry metric of a trained run under its scene's
+//! protocol, with per-view renders and error maps, `metrics.json` and a printed table.
+//!
+//! Owns the protocol choice and the `metrics.json` layout of `eval` (which `bench`
+//! reads back); the metrics themselves come from the engine's metrics room:
+//! * protocol, by the scene's format: **DTU masked** for DTU scenes (PSNR over the
+//!   object mask, SSIM and LPIPS on `img * mask + (1 - mask)` composites of both
+//!   images; the unmasked figures are kept as `full_image`), **full image** for LLFF
+//!   and synthetic scenes (whose GT masks are not part of their protocol);
+//! * geometry (scenes with ground truth): [`edgenerf::train::evaluate_view`], i.e.
+//!   depth AbsRel / RMSE / delta, normal angles, each split by the GT edge band, DBE;
+//! * LPIPS (VGG, Alex) when the weights are installed (`tools/lpips/fetch-weights`);
+//! * maps: depth error, normal angle error ([`edgenerf::metrics::maps`]) and an edge
+//!   overlay: the DBE's Canny edges of GT and predicted depth where the scene has GT
+//!   depth, else Canny edges of the GT and rendered images' luma.
+//!
+//! `metrics.json` holds `metrics` (means over the views of every per-view figure,
+//! flattened to dotted names such as `depth.non_edge.abs_rel`, see
+//! [`flatten_view_metrics`]) and `views` (the per-view records).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use edgenerf::data::{Scene, SceneFormat};
+use edgenerf::edges::{CannyParams, canny, luma, mask_stem};
+use edgenerf::gpu::GpuOptions;
+use edgenerf::metrics::boundary::{DbeParams, dbe_edges, normalize_depth};
+use edgenerf::metrics::maps::{depth_error_map, edge_overlay, normal_error_map};
+use edgenerf::metrics::{GeometryMetrics, ImageMetrics, masked_image_metrics};
+use edgenerf::train::{RenderedView, evaluate_view};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A run directory (holding checkpoint.safetensors) or a checkpoint file.
+    run: PathBuf,
+    /// Which views: test, train or all.
+    #[arg(long, default_value = "test", value_parser = ["test", "train", "all"])]
+    split: String,
+    /// LPIPS networks. Default: both where the weights are installed, none (with a
+    /// note) where not; asking explicitly makes missing weights an error.
+    #[arg(long, value_enum)]
+    lpips: Option<LpipsChoice>,
+    /// Output directory (default: `eval/` beside the checkpoint, `eval-<split>/` for
+    /// other splits than test).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Scene directory (default: the path recorded in the checkpoint's config).
+    #[arg(long)]
+    scene: Option<PathBuf>,
+}
+
+/// `--lpips` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LpipsChoice {
+    Vgg,
+    Alex,
+    Both,
+    None,
+}
+
+/// One LPIPS network ready to score image pairs: `(width, height, a, b) -> distance`.
+type LpipsScorer = Box<dyn Fn(u32, u32, &[f32], &[f32]) -> anyhow::Result<f64>>;
+
+/// The LPIPS networks of a run of `eval`, and what to say about those left out.
+struct LpipsSet {
+    vgg: Option<LpipsScorer>,
+    alex: Option<LpipsScorer>,
+    /// One line per network that was wanted (or would be by default) but is absent.
+    notes: Vec<String>,
+}
+
+/// Loads one LPIPS network from the default weights directory.
+fn load_lpips_net(net: &str) -> anyhow::Result<LpipsScorer> {
+    bail!("LPIPS ({net}) is not part of this build of the engine yet (edgenerf::metrics::lpips)")
+}
+
+impl LpipsSet {
+    /// Resolves `--lpips`: explicit choices must load (else an error naming the fetch
+    /// script), the default takes what loads and notes the rest.
+    fn load(choice: Option<LpipsChoice>) -> anyhow::Result<LpipsSet> {
+        let wanted: &[&str] = match choice {
+            Some(LpipsChoice::None) => &[],
+            Some(LpipsChoice::Vgg) => &["vgg"],
+            Some(LpipsChoice::Alex) => &["alex"],
+            Some(LpipsChoice::Both) | None => &["vgg", "alex"],
+        };
+        let mut set = LpipsSet { vgg: None, alex: None, notes: Vec::new() };
+        for &net in wanted {
+            match load_lpips_net(net) {
+                Ok(scorer) => *(if net == "vgg" { &mut set.vgg } else { &mut set.alex }) = Some(scorer),
+                Err(e) if choice.is_some() => {
+                    return Err(e.context(format!("--lpips {net}: install the weights with tools/lpips/fetch-weights")));
+                }
+                Err(e) => set.notes.push(format!("LPIPS {net} left out ({e:#})")),
+            }
+        }
+        if !set.notes.is_empty() {
+            set.notes.push("LPIPS fields are null; tools/lpips/fetch-weights installs the weights".into());
+        }
+        Ok(set)
+    }
+}
+
+/// How a view was scored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Protocol {
+    /// PSNR over the object mask; SSIM and LPIPS on white composites (RegNeRF's DTU).
+    DtuMasked,
+    /// Every pixel counts (LLFF, synthetic; DTU views without a mask).
+    FullImage,
+}
+
+/// Every figure of one view.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewRecord {
+    pub view: usize,
+    /// File stem of its renders and maps (unique within the scene).
+    pub name: String,
+    pub protocol: Protocol,
+    /// Under `protocol`.
+    pub psnr: f64,
+    pub ssim: f64,
+    pub lpips_vgg: Option<f64>,
+    pub lpips_alex: Option<f64>,
+    /// Unmasked PSNR / SSIM where the protocol is masked.
+    pub full_image: Option<ImageMetrics>,
+    pub geometry: Option<GeometryMetrics>,
+}
+
+/// What `eval` writes as `metrics.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    pub checkpoint: PathBuf,
+    pub scene: PathBuf,
+    pub split: String,
+    pub step: u64,
+    pub adapter: String,
+    pub protocol: Protocol,
+    /// Why LPIPS fields are null, where they are.
+    pub notes: Vec<String>,
+    /// Means over the views of each flattened per-view figure.
+    pub metrics: BTreeMap<String, f64>,
+    pub views: Vec<ViewRecord>,
+}
+
+/// A view's figures as `name -> value`: `psnr`, `ssim`, `lpips_vgg`, `lpips_alex` and
+/// the numeric leaves of its geometry with dotted paths (`depth.edge.rmse`,
+/// `normal.all.under_11_25`, `boundary.accuracy`); parameters and pixel counts are left
+/// out, and so are figures that are absent (null).
+pub fn flatten_view_metrics(v: &ViewRecord) -> BTreeMap<String, f64> {
+    fn walk(prefix: &str, value: &serde_json::Value, out: &mut BTreeMap<String, f64>) {
+        match value {
+            serde_json::Value::Object(map) => {
+                for (k, v) in map {
+                    if k == "params" || k.ends_with("pixels") {
+                        continue;
+                    }
+                    walk(&if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") }, v, out);
+                }
+            }
+            serde_json::Value::Number(n) => {
+                if let Some(x) = n.as_f64() {
+                    out.insert(prefix.to_string(), x);
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut out = BTreeMap::from([("psnr".to_string(), v.psnr), ("ssim".to_string(), v.ssim)]);
+    for (k, x) in [("lpips_vgg", v.lpips_vgg), ("lpips_alex", v.lpips_alex)] {
+        if let Some(x) = x {
+            out.insert(k.to_string(), x);
+        }
+    }
+    if let Some(g) = &v.geometry {
+        walk("", &serde_json::to_value(g).expect("metrics serialize"), &mut out);
+    }
+    out
+}
+
+/// Means over views of [`flatten_view_metrics`] (each over the views that have it).
+pub fn mean_metrics(views: &[ViewRecord]) -> BTreeMap<String, f64> {
+    let mut sums: BTreeMap<String, (f64, usize)> = BTreeMap::new();
+    for v in views {
+        for (k, x) in flatten_view_metrics(v) {
+            let e = sums.entry(k).or_default();
+            e.0 += x;
+            e.1 += 1;
+        }
+    }
+    sums.into_iter().map(|(k, (s, n))| (k, s / n as f64)).collect()
+}
+
+/// `img * mask + (1 - mask)` (RGB interleaved, one mask value per pixel).
+fn white_composite(img: &[f32], mask: &[f32]) -> Vec<f32> {
+    img.iter().enumerate().map(|(i, &v)| v * mask[i / 3] + (1.0 - mask[i / 3])).collect()
+}
+
+/// Scores one rendered view and writes its renders and error maps into `out`.
+fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out: &Path) -> anyhow::Result<ViewRecord> {
+    let view = &scene.views[v];
+    let name = mask_stem(scene, v);
+    let (w, h) = (r.width, r.height);
+    let base = evaluate_view(scene, v, r).with_context(|| format!("metrics of view {name}"))?;
+    let rgb: Vec<f32> = r.rgb.iter().flatten().copied().collect();
+    let dtu = matches!(scene.format, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf);
+    let (protocol, psnr, ssim, full_image, (lp_a, lp_b)) = match view.mask.as_ref().filter(|_| dtu) {
+        Some(mask) => {
+            let m = masked_image_metrics(w, h, &rgb, &view.image.data, mask)?;
+            let full = ImageMetrics { psnr: base.psnr as f64, ssim: base.ssim as f64 };
+            (Protocol::DtuMasked, m.psnr, m.ssim, Some(full), (white_composite(&rgb, mask), white_composite(&view.image.data, mask)))
+        }
+        None => (Protocol::FullImage, base.psnr as f64, base.ssim as f64, None, (rgb.clone(), view.image.data.clone())),
+    };
+    let score = |s: &Option<LpipsScorer>| s.as_ref().map(|f| f(w, h, &lp_a, &lp_b)).transpose();
+    let (lpips_vgg, lpips_alex) = (score(&lpips.vgg)?, score(&lpips.alex)?);
+
+    crate::output::write_view(out, &name, r)?;
+    let save = |img: edgenerf::data::ImageRgb, what: &str| img.save_png(out.join(format!("{name}_{what}.png")));
+    let gt_depth = view.depth.as_deref().filter(|_| scene.ndc.is_none());
+    let depth = r.terminated_depth(scene.far);
+    if let Some(gt) = gt_depth {
+        save(depth_error_map(w, h, gt, &depth, None)?.0, "depth_error")?;
+        let (e_gt, e_est) = dbe_edges(w, h, gt, &depth, &DbeParams::default())?;
+        save(edge_overlay(w, h, &normalize_depth(gt, &depth)?, &e_gt, &e_est)?, "edge_overlay")?;
+    } else {
+        let params = CannyParams::default();
+        let e_gt = canny(&luma(&view.image.data), w, h, &params);
+        let e_est = canny(&luma(&rgb), w, h, &params);
+        save(edge_overlay(w, h, &luma(&view.image.data), &e_gt, &e_est)?, "edge_overlay")?;
+    }
+    if let Some(gt) = view.normal.as_deref() {
+        save(normal_error_map(w, h, gt, &r.unit_normals())?, "normal_error")?;
+    }
+    Ok(ViewRecord { view: v, name, protocol, psnr, ssim, lpips_vgg, lpips_alex, full_image, geometry: base.geometry })
+}
+
+pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
+    let lpips = LpipsSet::load(args.lpips)?;
+    if !lpips.notes.is_empty() {
+        eprintln!("note: {}", lpips.notes.join("; "));
+    }
+    let mut trainer = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
+    let views = crate::cmd::render::split_views(&trainer.scene, &args.split)?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        let dir = if args.run.is_dir() { args.run.clone() } else { args.run.parent().map(Path::to_path_buf).unwrap_or_default() };
+        dir.join(if args.split == "test" { "eval".to_string() } else { format!("eval-{}", args.split) })
+    });
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+
+    let bar = ProgressBar::new(views.len() as u64);
+    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} views [{elapsed_precise}] {msg}").unwrap());
+    let mut records = Vec::new();
+    for v in views {
+        bar.set_message(trainer.scene.views[v].name.clone());
+        let r = trainer.model.render_view(&trainer.gpu, &trainer.scene, v)?;
+        records.push(evaluate_one(&trainer.scene, v, &r, &lpips, &out)?);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    if records.is_empty() {
+        bail!("the {} split of {} has no view", args.split, trainer.scene.root.display());
+    }
+    let protocol = records[0].protocol;
+    let report = EvalReport {
+        checkpoint: args.run.clone(),
+        scene: trainer.scene.root.clone(),
+        split: args.split.clone(),
+        step: trainer.step_count(),
+        adapter: trainer.gpu.adapter().name.clone(),
+        protocol,
+        notes: lpips.notes,
+        metrics: mean_metrics(&records),
+        views: records,
+    };
+    print_table(&report);
+    let path = out.join("metrics.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)?).with_context(|| format!("writing {}", path.display()))?;
+    eprintln!("wrote {} and per-view renders and error maps to {}", path.display(), out.display());
+    Ok(())
+}
+
+/// The per-view table and the mean row.
+fn print_table(report: &EvalReport) {
+    let cols = [
+        ("PSNR", "psnr", 2),
+        ("SSIM", "ssim", 3),
+        ("LPIPSv", "lpips_vgg", 3),
+        ("LPIPSa", "lpips_alex", 3),
+        ("AbsRel", "depth.all.abs_rel", 3),
+        ("d<1.25", "depth.all.delta_1", 3),
+        ("n_mean", "normal.all.mean_deg", 1),
+        ("n_med", "normal.all.median_deg", 1),
+        ("n_edge", "normal.edge.mean_deg", 1),
+        ("n_nonedge", "normal.non_edge.mean_deg", 1),
+        ("DBEacc", "boundary.accuracy", 2),
+        ("DBEcomp", "boundary.completeness", 2),
+    ];
+    let row = |label: &str, m: &BTreeMap<String, f64>| {
+        let cells: String = cols
+            .iter()
+            .map(|(h, k, d)| {
+                let cell = m.get(*k).map_or("-".to_string(), |x| format!("{x:.*}", *d));
+                format!(" {cell:>w$}", w = h.len().max(6))
+            })
+            .collect();
+        println!("{label:<14}{cells}");
+    };
+    println!(
+        "{} views of {} ({} split, step {}, protocol {}, {})",
+        report.views.len(),
+        report.scene.display(),
+        report.split,
+        report.step,
+        serde_json::to_value(report.protocol).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        report.adapter
+    );
+    let header: String = cols.iter().map(|(h, _, _)| format!(" {h:>w$}", w = h.len().max(6))).collect();
+    println!("{:<14}{header}", "view");
+    for v in &report.views {
+        row(&v.name, &flatten_view_metrics(v));
+    }
+    row("mean", &report.metrics);
+}
