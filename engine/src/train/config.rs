@@ -18,6 +18,7 @@ use crate::render::RenderConfig;
 use crate::sampler::SamplerConfig;
 
 use super::TrainError;
+use super::regnerf::RegNerfConfig;
 
 /// Which scene and how to load it.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -141,6 +142,8 @@ pub struct RunConfig {
     pub edges: EdgeConfig,
     /// The edge-guided depth and normal regularizers.
     pub reg: RegConfig,
+    /// RegNeRF's depth smoothness on random poses and sample-space annealing.
+    pub regnerf: RegNerfConfig,
 }
 
 impl RunConfig {

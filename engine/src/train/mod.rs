@@ -5,14 +5,18 @@
 //! ```text
 //! occupancy grid update (every 16 steps: field densities at grid query points)
 //! random 2x2 patches of one training image (or random pixels) -> rays (host)
+//!   [+ RegNeRF: 8x8 patches from random poses appended; all ranges annealed]
 //!   -> sampler (occupancy grid + BVH) -> samples
 //! field forward (+ analytic normals when L_n is on) -> composite
-//!   -> photometric loss L_c (+ edge-guided L_z, L_n on the patches) -> composite backward
+//!   -> photometric loss L_c (+ edge-guided L_z, L_n on the patches, + depth TV on the
+//!      random-pose patches) -> composite backward
 //! zero grads -> field backward (second order through the normals when L_n is on)
 //!   -> grad norm / NaN check / clip -> Adam (GPU)
 //! ```
-//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n` (see
-//! [`crate::loss::edge_reg`]); the edge masks of the training views are given by the
+//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv` (see
+//! [`crate::loss::edge_reg`], [`crate::loss::depth_tv`] and [`regnerf`]); the random-pose
+//! rays follow the photometric batch in the same sample batch, with zero photometric
+//! weight, so one forward and one backward pass serve every term; the edge masks of the training views are given by the
 //! caller (e.g. from a cache next to the run) or computed once, at the first step that
 //! draws patches, so rendering a checkpoint never computes them.
 //! The host reads back one small set of numbers per step (the batch's squared errors,
@@ -31,15 +35,17 @@
 pub mod checkpoint;
 pub mod config;
 pub mod model;
+pub mod random_poses;
 pub mod rays;
+pub mod regnerf;
 
 use std::path::{Path, PathBuf};
 
-use crate::data::{DataError, Scene, SceneFormat};
+use crate::data::{Camera, DataError, Scene, SceneFormat};
 use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
-use crate::loss::{EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
+use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
 use crate::metrics::MetricsError;
 use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, GeometryParams, NormalErrors, Regions, evaluate_geometry};
 use crate::metrics::image::image_metrics;
@@ -51,6 +57,7 @@ use crate::samples::{FieldGrads, RayOutput};
 pub use checkpoint::Checkpoint;
 pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
 pub use model::{Model, RenderedView};
+pub use regnerf::RegNerfConfig;
 
 use model::BatchBuffers;
 
@@ -96,7 +103,7 @@ impl TrainError {
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct StepStats {
     pub step: u64,
-    /// Total loss `lambda1 L_c + lambda2 L_z + lambda3 L_n` with this step's weights.
+    /// Total loss `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv` with this step's weights.
     pub loss: f32,
     /// Photometric `L_c` (mean squared error) and the PSNR of the batch from it.
     pub loss_color: f32,
@@ -115,16 +122,20 @@ pub struct StepStats {
     pub samples_truncated: u32,
     /// Occupied fraction of the occupancy grid after this step's update, if any.
     pub occupied_fraction: Option<f32>,
+    /// RegNeRF's depth TV on the random-pose patches (0 when inactive) and its weight.
+    pub loss_tv: f32,
+    pub lambda_tv: f32,
 }
 
 impl StepStats {
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv";
 
-    /// One CSV row, `elapsed_s` since the start of the run appended.
+    /// One CSV row, `elapsed_s` since the start of the run inserted where the header
+    /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -138,7 +149,9 @@ impl StepStats {
             self.samples,
             self.samples_per_ray,
             self.samples_truncated,
-            elapsed_s
+            elapsed_s,
+            self.loss_tv,
+            self.lambda_tv
         )
     }
 }
@@ -244,6 +257,11 @@ pub struct Trainer {
     grad_norm: GradNorm,
     photometric: Photometric,
     edge_reg: EdgeReg,
+    depth_tv: DepthTv,
+    /// RegNeRF's pool of random poses (when its depth TV is on).
+    tv_poses: Vec<Camera>,
+    /// Rays of the random-pose patches appended to each batch (0: none).
+    n_tv: u32,
     /// Edge mask of each training view (`scene.split.train` order); computed at the
     /// first step that draws patches unless given (rendering never needs them).
     edge_masks: Option<Vec<EdgeMask>>,
@@ -276,6 +294,7 @@ impl Trainer {
         config.optim.validate()?;
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
         config.reg.validate().map_err(config_error)?;
+        config.regnerf.validate().map_err(config_error)?;
         if scene.split.train.is_empty() {
             return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
         }
@@ -300,7 +319,16 @@ impl Trainer {
         let model = Model::new(&gpu, &scene, config.clone())?;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
         let n = config.train.rays_per_batch;
-        let capacity = config.train.max_samples;
+        let r = &config.regnerf;
+        let n_tv = r.patches(n) * r.patch_size * r.patch_size;
+        let tv_poses = if n_tv > 0 {
+            random_poses::random_poses(&scene, r.pose_kind_for(&scene), r.n_poses, config.train.seed)
+        } else {
+            Vec::new()
+        };
+        // The random-pose rays get the photometric rays' share of samples.
+        let n_all = n + n_tv;
+        let capacity = (config.train.max_samples as u64 * n_all as u64 / n.max(1) as u64).min(u32::MAX as u64) as u32;
         let has_alpha = scene.train_views().any(|v| v.alpha.is_some());
         let random_bg_renderer = (config.train.random_background && has_alpha)
             .then(|| Renderer::new(&gpu, RenderConfig { background: Background::Random, ..*model.renderer.config() }))
@@ -308,12 +336,15 @@ impl Trainer {
         Ok(Trainer {
             random_bg_renderer,
             grad_norm: GradNorm::new(&gpu)?,
-            photometric: Photometric::new(&gpu, n)?,
+            photometric: Photometric::new(&gpu, n_all)?,
             edge_reg: EdgeReg::new(&gpu, n / 4)?,
+            depth_tv: DepthTv::new(&gpu, n_tv)?,
+            tv_poses,
+            n_tv,
             edge_masks: masks,
-            bufs: BatchBuffers::new(&gpu, n, capacity)?,
-            targets: GpuBuffer::zeros(&gpu, "targets", n as usize)?,
-            d_rays: GpuBuffer::zeros(&gpu, "d rays", n as usize)?,
+            bufs: BatchBuffers::new(&gpu, n_all, capacity)?,
+            targets: GpuBuffer::zeros(&gpu, "targets", n_all as usize)?,
+            d_rays: GpuBuffer::zeros(&gpu, "d rays", n_all as usize)?,
             field_grads: FieldGrads::new(&gpu, capacity)?,
             gpu,
             scene,
@@ -412,8 +443,26 @@ impl Trainer {
             let loaded_over = self.scene.background.unwrap_or([1.0; 3]);
             batch.recomposite(loaded_over, |ray| random_background(bg_seed, ray));
         }
-        self.bufs.rays.write(&gpu, &batch.rays);
-        self.targets.write(&gpu, &batch.targets);
+        // RegNeRF: the random-pose patches follow the photometric rays, with zero
+        // photometric weight; every range is annealed.
+        let n_tv = self.n_tv;
+        let tv_weight = self.config().regnerf.tv_weight_at(step).filter(|_| n_tv > 0);
+        let mut rays = batch.rays.clone();
+        let mut targets = batch.targets.clone();
+        if n_tv > 0 {
+            let r = &self.model.config.regnerf;
+            let (tv_rays, z_scale) =
+                random_poses::patch_rays(&self.scene, &self.tv_poses, n_tv / (r.patch_size * r.patch_size), r.patch_size, seed, step);
+            rays.extend(tv_rays);
+            targets.resize(rays.len(), [0.0; 4]);
+            self.depth_tv.z_scale.write(&gpu, &z_scale);
+        }
+        if let Some(anneal) = self.config().regnerf.anneal_for(&self.scene) {
+            anneal.apply(&mut rays, step);
+        }
+        let n_all = n + n_tv;
+        self.bufs.rays.write(&gpu, &rays);
+        self.targets.write(&gpu, &targets);
         let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
         self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), normals)?;
 
@@ -422,9 +471,14 @@ impl Trainer {
         let mut enc = gpu.encoder();
         renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, bg_seed)?;
         let lambda_color = self.config().reg.lambda_color;
-        self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n, n as f32, lambda_color);
+        self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n_all, n as f32, lambda_color);
         if let Some(w) = &reg {
             self.edge_reg.record(&mut enc, &bufs.render_out.rays, &self.d_rays, n / 4, w);
+        }
+        let regnerf = &self.model.config.regnerf;
+        if let Some(lambda) = tv_weight {
+            let acc_weight = regnerf.acc_weight_for(&self.scene);
+            self.depth_tv.record(&mut enc, &bufs.render_out.rays, &bufs.rays, &self.d_rays, n, n_tv, regnerf.patch_size, lambda, acc_weight);
         }
         renderer.backward(
             &mut enc,
@@ -441,7 +495,8 @@ impl Trainer {
         // Adam's own skip of non-finite gradients is not enough on its own.
         let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
         let reg_losses = if reg.is_some() { self.edge_reg.losses(&gpu, n / 4)? } else { EdgeRegLosses::default() };
-        for (value, what) in [(mse, "the photometric loss"), (reg_losses.depth, "L_z"), (reg_losses.normal, "L_n")] {
+        let loss_tv = if tv_weight.is_some() { self.depth_tv.loss(&gpu, n_tv)? } else { 0.0 };
+        for (value, what) in [(mse, "the photometric loss"), (reg_losses.depth, "L_z"), (reg_losses.normal, "L_n"), (loss_tv, "the depth TV")] {
             if !value.is_finite() {
                 self.step += 1;
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -467,9 +522,10 @@ impl Trainer {
         }
         let n_cells = self.config().sampler.resolution.pow(3) as f32;
         let (lambda_depth, lambda_normal) = reg.map_or((0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal));
+        let lambda_tv = tv_weight.unwrap_or(0.0);
         Ok(StepStats {
             step,
-            loss: lambda_color * mse + lambda_depth * reg_losses.depth + lambda_normal * reg_losses.normal,
+            loss: lambda_color * mse + lambda_depth * reg_losses.depth + lambda_normal * reg_losses.normal + lambda_tv * loss_tv,
             loss_color: mse,
             psnr: psnr(mse),
             loss_depth: reg_losses.depth,
@@ -479,9 +535,11 @@ impl Trainer {
             lr,
             grad_norm: grad.raw_norm,
             samples: counts[0],
-            samples_per_ray: counts[0] as f32 / n as f32,
+            samples_per_ray: counts[0] as f32 / n_all as f32,
             samples_truncated: counts[1].saturating_sub(counts[0]),
             occupied_fraction: update.map(|u| u.occupied_cells as f32 / n_cells),
+            loss_tv,
+            lambda_tv,
         })
     }
 

@@ -42,6 +42,14 @@ pub struct Args {
     /// lambda3, the weight of L_n (reg.lambda_normal; paper 0.1, 0.001 on DTU; official 0.01).
     #[arg(long)]
     lambda_normal: Option<f32>,
+    /// RegNeRF's depth smoothness: total variation of the depth of 8x8 patches rendered
+    /// from random unobserved poses (regnerf.depth_tv; weights regnerf.tv_weight*).
+    #[arg(long)]
+    regnerf_depth_tv: bool,
+    /// RegNeRF's sample-space annealing: ray ranges start around their midpoint and
+    /// widen to the full range (regnerf.anneal; regnerf.anneal_steps/_start/_mid).
+    #[arg(long)]
+    anneal_sample_space: bool,
     /// Edge maps for the regularizers' masks (edges.* in the config).
     #[command(flatten)]
     edges: crate::cmd::edges::EdgeArgs,
@@ -90,6 +98,12 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     if args.lambda_normal.is_some() {
         config.reg.lambda_normal = args.lambda_normal;
+    }
+    if args.regnerf_depth_tv {
+        config.regnerf.depth_tv = true;
+    }
+    if args.anneal_sample_space {
+        config.regnerf.anneal = true;
     }
     for o in &args.overrides {
         config.set(o)?;
@@ -185,11 +199,14 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         psnr_ema = Some(ema);
         let steps_per_s = (trainer.step_count() - first_step) as f64 / elapsed.max(1e-9);
         bar.set_position(trainer.step_count());
-        let reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
+        let mut reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
             format!(" Lz {:.2e} Ln {:.2e}", stats.loss_depth, stats.loss_normal)
         } else {
             String::new()
         };
+        if stats.lambda_tv > 0.0 {
+            reg += &format!(" Ltv {:.2e}", stats.loss_tv);
+        }
         bar.set_message(format!(
             "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
             stats.loss_color, ema, stats.samples_per_ray, steps_per_s
