@@ -52,7 +52,7 @@ use crate::metrics::image::image_metrics;
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
 use crate::render::{Background, RenderConfig, RenderError, Renderer, random_background};
 use crate::sampler::SamplerError;
-use crate::samples::{FieldGrads, RayOutput};
+use crate::samples::{self as samples_gpu, FieldGrads, RayOutput};
 
 pub use checkpoint::Checkpoint;
 pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
@@ -397,8 +397,25 @@ impl Trainer {
     }
 
     /// The batch [`Trainer::step`] trains on next: 2x2 patches with their edge masks or
-    /// single pixels, as `train.batch` says (a pure function of the seed and step).
+    /// single pixels, as `train.batch` says, and RegNeRF's random-pose patches when its
+    /// depth TV is on (a pure function of the seed and step).
     pub fn draw_batch(&mut self) -> Result<rays::PixelBatch, TrainError> {
+        let mut batch = self.draw_photometric_batch()?;
+        (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
+        Ok(batch)
+    }
+
+    /// RegNeRF's random-pose patches of this step (empty when its depth TV is off).
+    fn draw_tv_patches(&self) -> (Vec<samples_gpu::GpuRay>, Vec<f32>) {
+        if self.n_tv == 0 {
+            return (Vec::new(), Vec::new());
+        }
+        let (r, seed) = (&self.config().regnerf, self.config().train.seed);
+        let n_patches = self.n_tv / (r.patch_size * r.patch_size);
+        random_poses::patch_rays(&self.scene, &self.tv_poses, n_patches, r.patch_size, seed, self.step)
+    }
+
+    fn draw_photometric_batch(&mut self) -> Result<rays::PixelBatch, TrainError> {
         let (step, seed) = (self.step, self.config().train.seed);
         let n = self.config().train.rays_per_batch;
         if self.config().train.batch == BatchKind::Pixels {
@@ -418,7 +435,8 @@ impl Trainer {
 
     /// One optimisation step on a given batch of `train.rays_per_batch` rays (patch
     /// batches carry their edge masks in [`rays::PixelBatch::reg`]; the regularizers
-    /// run on them when `train.batch` is `patches`).
+    /// run on them when `train.batch` is `patches`). With RegNeRF's depth TV on, the
+    /// batch's random-pose patches are used, or drawn for the step when it has none.
     pub fn step_on(&mut self, mut batch: rays::PixelBatch) -> Result<StepStats, TrainError> {
         let gpu = self.gpu.clone();
         let step = self.step;
@@ -450,12 +468,18 @@ impl Trainer {
         let mut rays = batch.rays.clone();
         let mut targets = batch.targets.clone();
         if n_tv > 0 {
-            let r = &self.model.config.regnerf;
-            let (tv_rays, z_scale) =
-                random_poses::patch_rays(&self.scene, &self.tv_poses, n_tv / (r.patch_size * r.patch_size), r.patch_size, seed, step);
-            rays.extend(tv_rays);
+            if batch.tv_rays.is_empty() {
+                (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
+            }
+            if batch.tv_rays.len() != n_tv as usize || batch.tv_z_scale.len() != n_tv as usize {
+                return Err(TrainError::Config {
+                    source_name: "batch".into(),
+                    message: format!("{} random-pose patch rays given, the regnerf settings make {n_tv}", batch.tv_rays.len()),
+                });
+            }
+            rays.extend_from_slice(&batch.tv_rays);
             targets.resize(rays.len(), [0.0; 4]);
-            self.depth_tv.z_scale.write(&gpu, &z_scale);
+            self.depth_tv.z_scale.write(&gpu, &batch.tv_z_scale);
         }
         if let Some(anneal) = self.config().regnerf.anneal_for(&self.scene) {
             anneal.apply(&mut rays, step);

@@ -86,6 +86,10 @@ pub struct PixelBatch {
     /// `e` = 1 on non-edge pixels; `z_scale` turns the rendered ray parameter into the
     /// regularized depth ([`Ray::z_scale`]: along the camera axis in world space, 1 in NDC).
     pub reg: Vec<[f32; 2]>,
+    /// RegNeRF's depth TV patches from random poses (rays and their `z_scale`), trained
+    /// after the photometric rays; empty: the trainer draws them for the step.
+    pub tv_rays: Vec<GpuRay>,
+    pub tv_z_scale: Vec<f32>,
 }
 
 impl PixelBatch {
@@ -197,6 +201,7 @@ mod tests {
             // Composited over white: 0.25 * fg + 0.75 * 1 with fg = 0.2 -> 0.8.
             targets: vec![[0.8, 0.8, 0.8, 1.0], [0.3, 0.4, 0.5, 1.0], [0.9, 0.9, 0.9, 1.0]],
             alpha: vec![Some(0.25), None, Some(1.0)],
+            ..Default::default()
         };
         b.recomposite([1.0; 3], |_| [0.0, 0.5, 1.0]);
         let want = [0.25 * 0.2 + 0.75 * 0.0, 0.25 * 0.2 + 0.75 * 0.5, 0.25 * 0.2 + 0.75 * 1.0];

@@ -1,0 +1,61 @@
+//! `edgenerf train` with RegNeRF's options: `--regnerf-depth-tv` and
+//! `--anneal-sample-space` train, land in the effective config, and log the depth TV
+//! term (appended `loss_tv` / `lambda_tv` columns of `log.csv`).
+
+mod common;
+
+use common::{edgenerf, repo, text};
+
+#[test]
+fn regnerf_flags_train_and_log_the_depth_tv_term() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let config = repo().join("tools/configs/sparse-small.toml");
+    let dir = out.path().join("regnerf");
+    let o = edgenerf(&[
+        "train",
+        scene.to_str().unwrap(),
+        "--views",
+        "3",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--iters",
+        "3",
+        "--no-eval",
+        "--no-depth-reg",
+        "--no-normal-reg",
+        "--regnerf-depth-tv",
+        "--anneal-sample-space",
+        "--set",
+        "regnerf.patches_per_step=4",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    assert_eq!(&header[header.len() - 3..], ["elapsed_s", "loss_tv", "lambda_tv"], "new columns appended");
+    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 3);
+    let col = |k: &str| header.iter().position(|h| *h == k).unwrap();
+    for (s, r) in rows.iter().enumerate() {
+        // RegNeRF's decaying weight 400 -> 0.1 over 512 steps, divided by 3 (module doc).
+        let want = (400.0 * (1.0 - (s + 1) as f64 / 512.0) + 0.1 * (s + 1) as f64 / 512.0) / 3.0;
+        assert!((r[col("lambda_tv")] - want).abs() < 1e-3 * want, "step {s}: lambda_tv {} vs {want}", r[col("lambda_tv")]);
+        assert!(r[col("loss_tv")].is_finite() && r[col("loss_tv")] >= 0.0);
+        assert_eq!((r[col("lambda_depth")], r[col("lambda_normal")]), (0.0, 0.0));
+    }
+    assert!(rows.iter().any(|r| r[col("loss_tv")] > 0.0), "the term is measured:\n{log}");
+    let cfg: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("config.json")).unwrap()).unwrap();
+    assert_eq!((cfg["regnerf"]["depth_tv"].as_bool(), cfg["regnerf"]["anneal"].as_bool()), (Some(true), Some(true)));
+    assert_eq!(cfg["regnerf"]["patch_size"], 8);
+
+    // Without the flags: no term, and the trailing columns read 0.
+    let plain = out.path().join("plain");
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--views", "3", "--config", config.to_str().unwrap(), "--out", plain.to_str().unwrap(), "--iters", "1", "--no-eval"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let log = std::fs::read_to_string(plain.join("log.csv")).unwrap();
+    let row: Vec<f64> = log.lines().nth(1).unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    assert_eq!(&row[row.len() - 2..], [0.0, 0.0]);
+}
