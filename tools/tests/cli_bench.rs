@@ -50,7 +50,7 @@ fn bench_runs_a_suite_resumes_and_records_failures() {
     let dir = tempfile::tempdir().unwrap();
     let suite = tiny_suite(dir.path());
     let out = dir.path().join("out");
-    let args = ["bench", suite.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let args = ["bench", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--lpips", "none"];
     let o = edgenerf(&args);
     let t = text(&o);
     assert!(o.status.success(), "a failed run does not fail the sweep: {t}");
@@ -110,7 +110,7 @@ fn bench_quick_variant_and_unknown_suites() {
     let dir = tempfile::tempdir().unwrap();
     let suite = tiny_suite(dir.path());
     let out = dir.path().join("quick");
-    let o = edgenerf(&["bench", suite.to_str().unwrap(), "--quick", "--out", out.to_str().unwrap()]);
+    let o = edgenerf(&["bench", suite.to_str().unwrap(), "--quick", "--out", out.to_str().unwrap(), "--lpips", "none"]);
     assert!(o.status.success(), "{}", text(&o));
     let rows: Vec<serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(rows.len(), 1, "[quick] keeps the configs it names");
@@ -166,9 +166,18 @@ fn eval_writes_metrics_and_error_maps() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
 
-    let o = edgenerf(&["eval", run.to_str().unwrap(), "--lpips", "none"]);
+    // Without LPIPS weights: a one-line note and null LPIPS fields by default.
+    let no_weights = dir.path().join("no-lpips-weights");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_edgenerf"))
+        .args(["eval", run.to_str().unwrap()])
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .env(edgenerf::metrics::lpips::WEIGHTS_DIR_ENV, &no_weights)
+        .output()
+        .unwrap();
     let t = text(&o);
     assert!(o.status.success(), "{t}");
+    assert_eq!(t.lines().filter(|l| l.starts_with("note: LPIPS left out")).count(), 1, "{t}");
+    assert!(t.contains("tools/lpips/fetch-weights"), "{t}");
     assert!(t.contains("protocol full-image") && t.contains("mean"), "{t}");
     let out = run.join("eval");
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
@@ -177,16 +186,34 @@ fn eval_writes_metrics_and_error_maps() {
     for k in ["psnr", "ssim", "depth.all.abs_rel", "depth.all.rmse", "depth.all.delta_1", "depth.edge.abs", "depth.non_edge.abs", "normal.all.median_deg", "normal.all.under_11_25", "normal.edge.mean_deg", "boundary.completeness"] {
         assert!(m["metrics"][k].is_number(), "metrics.{k} missing: {}", m["metrics"]);
     }
-    assert!(m["views"][0]["lpips_vgg"].is_null(), "LPIPS asked off");
+    assert!(m["views"][0]["lpips_vgg"].is_null() && m["views"][0]["lpips_alex"].is_null(), "no weights, no LPIPS");
     let first = m["views"][0]["name"].as_str().unwrap();
     for f in ["rgb.png", "depth.png", "normal.png", "depth_error.png", "normal_error.png", "edge_overlay.png"] {
         assert!(out.join(format!("{first}_{f}")).is_file(), "{first}_{f} missing");
     }
 
-    // The train split, elsewhere.
+    // Asked for explicitly without weights: an error naming the fetch script.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_edgenerf"))
+        .args(["eval", run.to_str().unwrap(), "--lpips", "vgg", "--out", dir.path().join("x").to_str().unwrap()])
+        .env(edgenerf::metrics::lpips::WEIGHTS_DIR_ENV, &no_weights)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(text(&o).contains("tools/lpips/fetch-weights"), "{}", text(&o));
+
+    // The train split, from the checkpoint file, elsewhere; LPIPS where its weights are
+    // installed, and asked for without them, a clear error.
     let other = dir.path().join("train-eval");
-    let o = edgenerf(&["eval", run.join("checkpoint.safetensors").to_str().unwrap(), "--split", "train", "--lpips", "none", "--out", other.to_str().unwrap()]);
+    let ckpt = run.join("checkpoint.safetensors");
+    let o = edgenerf(&["eval", ckpt.to_str().unwrap(), "--split", "train", "--lpips", "alex", "--out", other.to_str().unwrap()]);
+    if edgenerf::metrics::lpips::Lpips::from_default_dir(edgenerf::metrics::lpips::LpipsNet::Alex).is_err() {
+        assert!(!o.status.success());
+        assert!(text(&o).contains("tools/lpips/fetch-weights"), "{}", text(&o));
+        return;
+    }
     assert!(o.status.success(), "{}", text(&o));
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(other.join("metrics.json")).unwrap()).unwrap();
+    assert!(m["metrics"]["lpips_alex"].as_f64().unwrap() > 0.0, "{}", m["metrics"]);
+    assert!(m["views"][0]["lpips_vgg"].is_null(), "only the network asked for");
     assert_eq!(m["views"].as_array().unwrap().len(), 3);
 }

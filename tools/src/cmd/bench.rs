@@ -43,6 +43,9 @@ pub struct Args {
     /// Train nothing: rebuild results and report from the runs present.
     #[arg(long)]
     report_only: bool,
+    /// LPIPS networks of each run's `eval` (default: those whose weights are installed).
+    #[arg(long, value_enum)]
+    lpips: Option<crate::cmd::eval::LpipsChoice>,
 }
 
 /// A run's record, `runs/<id>/bench.json`: written when the run has finished, either
@@ -142,7 +145,7 @@ fn subprocess(exe: &Path, args: &[String], log: &Path, what: &str) -> Result<(),
 }
 
 /// Trains and evaluates one run in `dir` (emptied first).
-fn run_one(exe: &Path, adapter: Option<&str>, spec: &RunSpec, dir: &Path) -> Result<(), String> {
+fn run_one(exe: &Path, adapter: Option<&str>, lpips: Option<&str>, spec: &RunSpec, dir: &Path) -> Result<(), String> {
     if let Some(gt) = &spec.gt_edges {
         write_gt_edge_maps(&spec.scene, gt).map_err(|e| format!("ground-truth edge maps: {e:#}"))?;
     }
@@ -154,6 +157,9 @@ fn run_one(exe: &Path, adapter: Option<&str>, spec: &RunSpec, dir: &Path) -> Res
     subprocess(exe, &train, &dir.join("train.log"), "train")?;
     let mut eval = global;
     eval.extend(["eval".into(), dir.display().to_string(), "--out".into(), dir.join("eval").display().to_string()]);
+    if let Some(l) = lpips {
+        eval.extend(["--lpips".into(), l.to_string()]);
+    }
     subprocess(exe, &eval, &dir.join("eval.log"), "eval")
 }
 
@@ -180,6 +186,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
     let commit = git_commit(&repo);
     let exe = std::env::current_exe().context("locating the edgenerf binary")?;
     let start = Instant::now();
+    let lpips = args.lpips.and_then(|l| clap::ValueEnum::to_possible_value(&l)).map(|v| v.get_name().to_string());
 
     if !args.report_only {
         let todo: Vec<&RunSpec> =
@@ -204,7 +211,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
             }
             std::fs::create_dir_all(&dir)?;
             let t = Instant::now();
-            let result = run_one(&exe, adapter, spec, &dir);
+            let result = run_one(&exe, adapter, lpips.as_deref(), spec, &dir);
             let record = RunRecord {
                 id: spec.id.clone(),
                 scene: spec.scene_name.clone(),

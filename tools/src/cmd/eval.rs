@@ -27,6 +27,7 @@ use edgenerf::edges::{CannyParams, canny, luma, mask_stem};
 use edgenerf::gpu::GpuOptions;
 use edgenerf::metrics::boundary::{DbeParams, dbe_edges, normalize_depth};
 use edgenerf::metrics::maps::{depth_error_map, edge_overlay, normal_error_map};
+use edgenerf::metrics::lpips::{Lpips, LpipsNet};
 use edgenerf::metrics::{GeometryMetrics, ImageMetrics, masked_image_metrics};
 use edgenerf::train::{RenderedView, evaluate_view};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -68,37 +69,42 @@ type LpipsScorer = Box<dyn Fn(u32, u32, &[f32], &[f32]) -> anyhow::Result<f64>>;
 struct LpipsSet {
     vgg: Option<LpipsScorer>,
     alex: Option<LpipsScorer>,
-    /// One line per network that was wanted (or would be by default) but is absent.
+    /// What was left out and why (one line), where a network is absent.
     notes: Vec<String>,
 }
 
 /// Loads one LPIPS network from the default weights directory.
-fn load_lpips_net(net: &str) -> anyhow::Result<LpipsScorer> {
-    bail!("LPIPS ({net}) is not part of this build of the engine yet (edgenerf::metrics::lpips)")
+fn load_lpips_net(net: LpipsNet) -> anyhow::Result<LpipsScorer> {
+    let model = Lpips::from_default_dir(net)?;
+    Ok(Box::new(move |w, h, a, b| Ok(model.distance(w, h, a, b)?)))
 }
 
 impl LpipsSet {
     /// Resolves `--lpips`: explicit choices must load (else an error naming the fetch
     /// script), the default takes what loads and notes the rest.
     fn load(choice: Option<LpipsChoice>) -> anyhow::Result<LpipsSet> {
-        let wanted: &[&str] = match choice {
+        let wanted: &[LpipsNet] = match choice {
             Some(LpipsChoice::None) => &[],
-            Some(LpipsChoice::Vgg) => &["vgg"],
-            Some(LpipsChoice::Alex) => &["alex"],
-            Some(LpipsChoice::Both) | None => &["vgg", "alex"],
+            Some(LpipsChoice::Vgg) => &[LpipsNet::Vgg],
+            Some(LpipsChoice::Alex) => &[LpipsNet::Alex],
+            Some(LpipsChoice::Both) | None => &[LpipsNet::Vgg, LpipsNet::Alex],
         };
         let mut set = LpipsSet { vgg: None, alex: None, notes: Vec::new() };
+        let mut missing = Vec::new();
         for &net in wanted {
             match load_lpips_net(net) {
-                Ok(scorer) => *(if net == "vgg" { &mut set.vgg } else { &mut set.alex }) = Some(scorer),
+                Ok(scorer) => *(if net == LpipsNet::Vgg { &mut set.vgg } else { &mut set.alex }) = Some(scorer),
                 Err(e) if choice.is_some() => {
-                    return Err(e.context(format!("--lpips {net}: install the weights with tools/lpips/fetch-weights")));
+                    return Err(e.context(format!("--lpips {}: install the weights with tools/lpips/fetch-weights", net.name())));
                 }
-                Err(e) => set.notes.push(format!("LPIPS {net} left out ({e:#})")),
+                Err(e) => missing.push(format!("{}: {e:#}", net.name())),
             }
         }
-        if !set.notes.is_empty() {
-            set.notes.push("LPIPS fields are null; tools/lpips/fetch-weights installs the weights".into());
+        if !missing.is_empty() {
+            set.notes.push(format!(
+                "LPIPS left out, its fields null ({}); tools/lpips/fetch-weights installs the weights",
+                missing.join("; ")
+            ));
         }
         Ok(set)
     }
