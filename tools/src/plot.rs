@@ -58,11 +58,16 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a plot: {e:?}")
 }
 
-/// A legend across the top of `area`: a colour swatch and the name of each config.
-fn legend<DB: DrawingBackend>(area: &DrawingArea<DB, plotters::coord::Shift>, configs: &[String]) -> anyhow::Result<()> {
+/// A legend across the top of `area`: a colour swatch and the name of each config
+/// where `shown(i)` (configs without data are left out; colours stay by index).
+fn legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    configs: &[String],
+    shown: impl Fn(usize) -> bool,
+) -> anyhow::Result<()> {
     let style = (FONT, 16).into_font().color(&BLACK);
     let mut x = 12i32;
-    for (i, c) in configs.iter().enumerate() {
+    for (i, c) in configs.iter().enumerate().filter(|(i, _)| shown(*i)) {
         area.draw(&Rectangle::new([(x, 9), (x + 14, 23)], colour(i).filled())).map_err(plot_err)?;
         area.draw_text(c, &style, (x + 20, 7)).map_err(plot_err)?;
         let (tw, _) = area.estimate_text_size(c, &style).map_err(plot_err)?;
@@ -89,7 +94,7 @@ pub fn psnr_vs_time(panels: &[Curves], configs: &[String], path: &Path) -> anyho
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let (head, body) = root.split_vertically(top);
-        legend(&head, configs)?;
+        legend(&head, configs, |i| panels.iter().any(|p| p.lines.iter().any(|l| l.0 == configs[i])))?;
         for (panel, area) in panels.iter().zip(body.split_evenly((rows, cols))) {
             let t_max = panel.lines.iter().flat_map(|l| l.1.iter().map(|p| p.0)).fold(1e-3f64, f64::max);
             let ps: Vec<f64> = panel.lines.iter().flat_map(|l| l.1.iter().map(|p| p.1)).filter(|p| p.is_finite()).collect();
@@ -139,7 +144,7 @@ pub fn grouped_bars(panels: &[BarPanel], scenes: &[String], configs: &[String], 
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let (head, body) = root.split_vertically(top);
-        legend(&head, configs)?;
+        legend(&head, configs, |i| panels.iter().any(|p| p.values.iter().any(|row| row.get(i).is_some_and(Option::is_some))))?;
         for (panel, area) in panels.iter().zip(body.split_evenly((panels.len(), 1))) {
             let max = panel.values.iter().flatten().flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
             let mut chart = ChartBuilder::on(&area)

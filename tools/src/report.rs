@@ -306,10 +306,14 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
     }
     table(&mut md, &header, &body);
 
-    let _ = writeln!(md, "## Image metrics per scene\n");
+    let _ = writeln!(
+        md,
+        "## Image metrics per scene\n\nTest-view means; `train PSNR`: the last 10% of training batches; `run s`: the whole \
+         run (training, evaluation, start-ups), `train s`: the training loop.\n"
+    );
     let mut header = vec!["scene", "config", "runs"];
     header.extend(IMAGE_COLS.iter().map(|c| c.0));
-    header.extend(["train PSNR", "train s", "steps/s", "samples/s"]);
+    header.extend(["train PSNR", "run s", "train s", "steps/s", "samples/s"]);
     let mut body = Vec::new();
     for s in &scenes {
         for c in &configs {
@@ -317,6 +321,7 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
             let mut r = vec![s.clone(), format!("`{c}`"), sel.len().to_string()];
             r.extend(metric_cells(&sel, IMAGE_COLS));
             r.push(cell(mean(&sel, |r| r.final_train_psnr), 2));
+            r.push(cell(mean(&sel, |r| r.record.as_ref().map(|x| x.wall_s)), 0));
             r.push(cell(mean(&sel, |r| r.train_s), 0));
             r.push(cell(mean(&sel, |r| r.steps_per_s), 2));
             r.push(cell(mean(&sel, |r| r.samples_per_s).map(|x| x / 1e6), 2) + " M");
@@ -372,8 +377,9 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
                 .filter_map(|c| select(rows, Some(s), c).first().filter(|r| !r.curve.is_empty()).map(|r| (c.clone(), r.curve.clone())))
                 .collect(),
         })
+        .filter(|c| !c.lines.is_empty())
         .collect();
-    if curves.iter().any(|c| !c.lines.is_empty()) {
+    if !curves.is_empty() {
         crate::plot::psnr_vs_time(&curves, &configs, &out.join("psnr_vs_time.png"))?;
         let _ = writeln!(md, "Training PSNR (batch PSNR, smoothed) against wall time, first repeat of each run:\n\n![PSNR vs time](psnr_vs_time.png)\n");
     }
