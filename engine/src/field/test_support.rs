@@ -6,8 +6,9 @@
 use glam::Vec3;
 
 use super::grid::SplitMix64;
-use crate::gpu::Gpu;
-use crate::samples::{FieldOutputs, GpuSample};
+use super::Field;
+use crate::gpu::{Gpu, GpuBuffer};
+use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
 
 pub(crate) fn rng(seed: u64) -> SplitMix64 {
     SplitMix64::new(seed)
@@ -106,4 +107,50 @@ pub(crate) fn central_diff(params: &mut [f64], idx: usize, eps: f64, mut f: impl
     let lm = f(params);
     params[idx] = old;
     (lp - lm) / (2.0 * eps)
+}
+
+/// Prints forward / backward / density-query throughput of `field` on `n` random
+/// samples in `aabb`: wall time, and the process's CPU time (lavapipe runs in-process),
+/// which is steadier than wall time when other jobs share the cores.
+pub(crate) fn measure_throughput(gpu: &Gpu, field: &mut dyn Field, aabb: [Vec3; 2], n: usize) {
+    let samples = random_samples(aabb, n, 1);
+    let batch = SampleBatch::new(gpu, 1, n as u32).unwrap();
+    batch.samples.write(gpu, &samples);
+    batch.count.write(gpu, &[n as u32, n as u32]);
+    let out = FieldOutputs::new(gpu, n as u32).unwrap();
+    let grads = LossWeights::random(n, 2, 1.0, 1.0, 1.0).upload(gpu, n as u32);
+    let cpu_seconds = || -> f64 {
+        let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+        let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+        let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+        (ticks(11) + ticks(12)) / 100.0
+    };
+    let time = |label: &str, f: &mut dyn FnMut()| {
+        f();
+        gpu.wait().unwrap();
+        let reps = 3;
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for _ in 0..reps {
+            f();
+        }
+        gpu.wait().unwrap();
+        let dt = t0.elapsed().as_secs_f64() / reps as f64;
+        let dc = (cpu_seconds() - c0) / reps as f64;
+        eprintln!(
+            "{label}: {:.1} ms wall, {:.3} M samples/s; {:.1} ms CPU, {:.3} M samples per CPU-second",
+            dt * 1e3,
+            n as f64 / dt / 1e6,
+            dc * 1e3,
+            n as f64 / dc.max(1e-9) / 1e6
+        );
+    };
+    eprintln!("adapter: {}, field {} ({} parameters)", gpu.adapter(), field.kind(), field.n_params());
+    time("forward (no normals)", &mut || field.forward(gpu, &batch, &out, false).unwrap());
+    time("forward (normals)", &mut || field.forward(gpu, &batch, &out, true).unwrap());
+    time("backward (first order)", &mut || field.backward(gpu, &batch, &grads, false).unwrap());
+    time("backward (with normals)", &mut || field.backward(gpu, &batch, &grads, true).unwrap());
+    let pts: Vec<[f32; 4]> = samples.iter().map(|s| [s.pos[0], s.pos[1], s.pos[2], 0.0]).collect();
+    let pts = GpuBuffer::from_slice(gpu, "points", &pts).unwrap();
+    let dens = GpuBuffer::<f32>::zeros(gpu, "densities", n).unwrap();
+    time("density queries", &mut || field.density(gpu, &pts, n as u32, &dens).unwrap());
 }

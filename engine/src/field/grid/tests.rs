@@ -560,49 +560,6 @@ fn field_grid_export_import_roundtrip_and_param_groups() {
 #[ignore]
 fn field_grid_throughput() {
     let gpu = test_gpu(false);
-    let cfg = GridConfig::default();
-    let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
-    let n = 1usize << 16;
-    let samples = random_samples(AABB, n, 1);
-    let batch = SampleBatch::new(&gpu, 1, n as u32).unwrap();
-    batch.samples.write(&gpu, &samples);
-    batch.count.write(&gpu, &[n as u32, n as u32]);
-    let out = FieldOutputs::new(&gpu, n as u32).unwrap();
-    let w = LossWeights::random(n, 2, 1.0, 1.0, 1.0);
-    let grads = w.upload(&gpu, n as u32);
-    // Wall time, and the process's CPU time (lavapipe runs in-process), which is
-    // steadier than wall time when other jobs share the cores.
-    let cpu_seconds = || -> f64 {
-        let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-        let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-        let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-        (ticks(11) + ticks(12)) / 100.0
-    };
-    let time = |label: &str, f: &mut dyn FnMut()| {
-        f();
-        gpu.wait().unwrap();
-        let reps = 3;
-        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
-        for _ in 0..reps {
-            f();
-        }
-        gpu.wait().unwrap();
-        let dt = t0.elapsed().as_secs_f64() / reps as f64;
-        let dc = (cpu_seconds() - c0) / reps as f64;
-        eprintln!(
-            "{label}: {:.1} ms wall, {:.3} M samples/s; {:.1} ms CPU, {:.3} M samples per CPU-second",
-            dt * 1e3,
-            n as f64 / dt / 1e6,
-            dc * 1e3,
-            n as f64 / dc.max(1e-9) / 1e6
-        );
-    };
-    eprintln!("adapter: {}", gpu.adapter());
-    time("forward (no normals)", &mut || field.forward(&gpu, &batch, &out, false).unwrap());
-    time("forward (normals)", &mut || field.forward(&gpu, &batch, &out, true).unwrap());
-    time("backward (first order)", &mut || field.backward(&gpu, &batch, &grads, false).unwrap());
-    time("backward (with normals)", &mut || field.backward(&gpu, &batch, &grads, true).unwrap());
-    let pts = GpuBuffer::from_slice(&gpu, "pts", &samples.iter().map(|s| [s.pos[0], s.pos[1], s.pos[2], 0.0]).collect::<Vec<_>>()).unwrap();
-    let dens = GpuBuffer::<f32>::zeros(&gpu, "dens", n).unwrap();
-    time("density queries", &mut || field.density(&gpu, &pts, n as u32, &dens).unwrap());
+    let mut field = GridField::new(&gpu, &GridConfig::default(), AABB).unwrap();
+    measure_throughput(&gpu, &mut field, AABB, 1 << 16);
 }

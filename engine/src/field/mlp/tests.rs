@@ -322,3 +322,19 @@ fn field_mlp_gradients_with_normals_match_finite_differences_plain_pe() {
 fn field_mlp_first_order_gradients_match_finite_differences() {
     gradients_match_finite_differences(PositionEncoding::Integrated, false);
 }
+
+/// Throughput of the small and the full-size (mip-NeRF) network; run with
+/// `cargo test --release -p edgenerf-engine --lib field_mlp_throughput -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn field_mlp_throughput() {
+    let gpu = test_gpu(false);
+    let n = std::env::var("EDGENERF_THROUGHPUT_SAMPLES").ok().and_then(|v| v.parse().ok()).unwrap_or(1 << 14);
+    // EDGENERF_THROUGHPUT_SMALL_ONLY=1: skip the full-size network.
+    let full = std::env::var_os("EDGENERF_THROUGHPUT_SMALL_ONLY").is_none();
+    for cfg in [MlpConfig::small()].into_iter().chain(full.then(MlpConfig::default)) {
+        let mut field = MlpField::new(&gpu, &cfg, AABB, FOOTPRINT).unwrap();
+        eprintln!("mlp {} x {} (skip {:?}, colour {})", cfg.depth, cfg.width, cfg.skip_layer, cfg.color_width);
+        measure_throughput(&gpu, &mut field, AABB, n);
+    }
+}
