@@ -54,6 +54,10 @@ impl Default for LevelAnneal {
 pub struct TrainConfig {
     /// Optimisation steps.
     pub iters: u64,
+    /// Stop after the step that reaches this much training time (seconds), even
+    /// before `iters` (equal-wall-time comparisons); the learning-rate schedule still
+    /// follows `iters`. `None`: no limit.
+    pub max_seconds: Option<f64>,
     /// Rays per step (a multiple of 4 with patch batches: `rays_per_batch / 4` patches).
     pub rays_per_batch: u32,
     /// How a step's rays are drawn: 2x2 patches of `images_per_step` training images
@@ -81,6 +85,7 @@ impl Default for TrainConfig {
     fn default() -> Self {
         Self {
             iters: 5000,
+            max_seconds: None,
             rays_per_batch: 4096,
             batch: BatchKind::Patches,
             images_per_step: 1,

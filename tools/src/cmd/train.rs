@@ -22,6 +22,10 @@ pub struct Args {
     /// Optimisation steps (train.iters).
     #[arg(long)]
     iters: Option<u64>,
+    /// Stop once training has run this many seconds (train.max_seconds; the
+    /// learning-rate schedule still follows --iters): equal-wall-time comparisons.
+    #[arg(long, value_name = "SECONDS")]
+    max_seconds: Option<f64>,
     /// Field backend: the hash grid, or the mip-NeRF MLP (whose defaults include
     /// RegNeRF's optimizer and schedule). Recorded in the checkpoint.
     #[arg(long, value_parser = ["grid", "mlp"])]
@@ -82,6 +86,9 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
+    }
+    if args.max_seconds.is_some() {
+        config.train.max_seconds = args.max_seconds;
     }
     args.edges.apply(&mut config.edges);
     if args.no_depth_reg {
@@ -214,6 +221,10 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         let every = config.train.checkpoint_every;
         if every > 0 && trainer.step_count() % every == 0 && trainer.step_count() < iters {
             trainer.checkpoint()?.save(&ckpt_path)?;
+        }
+        if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
+            bar.println(format!("stopping at step {}: {elapsed:.0} s of training reached train.max_seconds", trainer.step_count()));
+            break;
         }
     }
     bar.finish();
