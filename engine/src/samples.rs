@@ -98,6 +98,16 @@ pub struct FieldOutputs {
 }
 
 impl FieldOutputs {
+    /// Panics unless every buffer holds `capacity` samples (a caller bug: buffers are
+    /// sized with their batch). `what` names the caller and role.
+    pub fn assert_capacity(&self, capacity: u32, what: &str) {
+        let cap = capacity as usize;
+        assert!(
+            self.density.len() >= cap && self.rgb.len() >= cap && self.normal.len() >= cap,
+            "{what}: buffers smaller than the batch capacity {capacity}"
+        );
+    }
+
     pub fn new(gpu: &Gpu, capacity: u32) -> Result<Self, GpuError> {
         let n = capacity as usize;
         Ok(Self {

@@ -662,10 +662,7 @@ impl Field for GridField {
 
     fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
         let cap = batch.capacity;
-        assert!(
-            out.density.len() >= cap as usize && out.rgb.len() >= cap as usize && out.normal.len() >= cap as usize,
-            "forward: FieldOutputs smaller than the batch capacity"
-        );
+        out.assert_capacity(cap, "forward: FieldOutputs");
         let kernel = gpu.kernel(&FORWARD)?;
         let mut enc = gpu.encoder();
         enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
@@ -692,10 +689,7 @@ impl Field for GridField {
     fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
     -> Result<(), GpuError> {
         let cap = batch.capacity;
-        assert!(
-            grads.density.len() >= cap as usize && grads.rgb.len() >= cap as usize && grads.normal.len() >= cap as usize,
-            "backward: FieldGrads smaller than the batch capacity"
-        );
+        grads.assert_capacity(cap, "backward: FieldGrads");
         self.ensure_scratch(gpu, cap)?;
         let backward = gpu.kernel(&BACKWARD)?;
         let outer = gpu.kernel(&OUTER)?;

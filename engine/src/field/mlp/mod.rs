@@ -537,10 +537,7 @@ impl Field for MlpField {
 
     fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
         let cap = batch.capacity;
-        assert!(
-            out.density.len() >= cap as usize && out.rgb.len() >= cap as usize && out.normal.len() >= cap as usize,
-            "forward: FieldOutputs smaller than the batch capacity"
-        );
+        out.assert_capacity(cap, "forward: FieldOutputs");
         let count = Self::batch_count(gpu, batch)?;
         let streams = if normals { 4 } else { 1 };
         let heads = gpu.kernel(&HEADS)?;
@@ -565,10 +562,7 @@ impl Field for MlpField {
     fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
     -> Result<(), GpuError> {
         let cap = batch.capacity;
-        assert!(
-            grads.density.len() >= cap as usize && grads.rgb.len() >= cap as usize && grads.normal.len() >= cap as usize,
-            "backward: FieldGrads smaller than the batch capacity"
-        );
+        grads.assert_capacity(cap, "backward: FieldGrads");
         let count = Self::batch_count(gpu, batch)?;
         let streams = if normal_grads { 4 } else { 1 };
         // Last chunk first: its activations may still be in place.
