@@ -132,6 +132,8 @@ pub struct ReportInput<'a> {
     pub repo: &'a Path,
     pub out: &'a Path,
     pub rows: &'a [Row],
+    /// The suite's `--quick` variant.
+    pub quick: bool,
 }
 
 fn csv_field(s: &str) -> String {
@@ -249,7 +251,7 @@ fn axes(rows: &[Row]) -> (Vec<String>, Vec<String>) {
 
 /// Writes results.csv, results.json, the plots and report.md.
 pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
-    let ReportInput { title, suite, suite_path, repo, out, rows } = *input;
+    let ReportInput { title, suite, suite_path, repo, out, rows, quick } = *input;
     write_csv(rows, &out.join("results.csv"))?;
     std::fs::write(out.join("results.json"), serde_json::to_string_pretty(rows)?)?;
     let (scenes, configs) = axes(rows);
@@ -268,7 +270,7 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
     let _ = writeln!(
         md,
         "Suite `{}`; {} runs: {} finished, {} failed or missing; {:.1} min of runs in all. \
-         Commit {}; adapter {}. Regenerate with `edgenerf bench {} --report-only`.\n",
+         Commit {}; adapter {}. Regenerate with `edgenerf bench {}{} --report-only`.\n",
         suite_shown.display(),
         rows.len(),
         done.len(),
@@ -277,6 +279,7 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
         commits.into_iter().collect::<Vec<_>>().join(", "),
         adapters.into_iter().collect::<Vec<_>>().join(", "),
         suite_shown.display(),
+        if quick { " --quick" } else { "" },
     );
     let _ = writeln!(md, "Configurations:\n");
     for c in &suite.configs {

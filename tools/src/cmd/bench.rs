@@ -240,7 +240,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
     }
 
     let rows = crate::report::collect(&runs, &out.join("runs"));
-    crate::report::write_all(&crate::report::ReportInput { title: &title, suite: &suite, suite_path: &path, repo: &repo, out: &out, rows: &rows })?;
+    crate::report::write_all(&crate::report::ReportInput { title: &title, suite: &suite, suite_path: &path, repo: &repo, out: &out, rows: &rows, quick: args.quick })?;
     let failed = rows.iter().filter(|r| r.record.as_ref().is_none_or(|r| r.status != "ok")).count();
     eprintln!(
         "wrote {} ({} rows, {} not ok), results.csv, results.json and plots",
