@@ -118,6 +118,16 @@ pub enum Backend {
     Mlp,
 }
 
+impl Backend {
+    /// The name the CLI and config files use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Grid => "grid",
+            Backend::Mlp => "mlp",
+        }
+    }
+}
+
 impl std::str::FromStr for Backend {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {

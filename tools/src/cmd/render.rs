@@ -22,10 +22,21 @@ pub struct Args {
     /// Scene directory (default: the path recorded in the checkpoint's config).
     #[arg(long)]
     scene: Option<PathBuf>,
+    /// The field backend expected in the checkpoint (it records its own; this only
+    /// checks, e.g. in scripts comparing backends).
+    #[arg(long, value_parser = ["grid", "mlp"])]
+    backend: Option<String>,
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let mut trainer = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
+    if let Some(b) = &args.backend {
+        let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;
+        let got = trainer.config().backend;
+        if got != want {
+            bail!("{} was trained with the {} backend, not {b} (--backend {b})", args.checkpoint.display(), got.name());
+        }
+    }
     let views = split_views(&trainer.scene, &args.split)?;
     if args.split == "test" {
         return evaluate_and_write(&mut trainer, &args.out);
