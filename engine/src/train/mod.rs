@@ -45,7 +45,7 @@ use crate::data::{Camera, DataError, Scene, SceneFormat};
 use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
-use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
+use crate::loss::{DepthTv, DropTruncated, EdgeReg, EdgeRegLosses, Photometric, photometric::psnr};
 use crate::metrics::MetricsError;
 use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, GeometryParams, NormalErrors, Regions, evaluate_geometry};
 use crate::metrics::image::image_metrics;
@@ -125,17 +125,20 @@ pub struct StepStats {
     /// RegNeRF's depth TV on the random-pose patches (0 when inactive) and its weight.
     pub loss_tv: f32,
     pub lambda_tv: f32,
+    /// Photometric rays the sample capacity cut, dropped from the losses
+    /// ([`crate::loss::truncated`]); `loss_color` and `psnr` are over the others.
+    pub rays_dropped: u32,
 }
 
 impl StepStats {
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -151,7 +154,8 @@ impl StepStats {
             self.samples_truncated,
             elapsed_s,
             self.loss_tv,
-            self.lambda_tv
+            self.lambda_tv,
+            self.rays_dropped
         )
     }
 }
@@ -256,6 +260,7 @@ pub struct Trainer {
     adam: Adam,
     grad_norm: GradNorm,
     photometric: Photometric,
+    drop_truncated: DropTruncated,
     edge_reg: EdgeReg,
     depth_tv: DepthTv,
     /// RegNeRF's pool of random poses (when its depth TV is on).
@@ -337,6 +342,7 @@ impl Trainer {
             random_bg_renderer,
             grad_norm: GradNorm::new(&gpu)?,
             photometric: Photometric::new(&gpu, n_all)?,
+            drop_truncated: DropTruncated::new(&gpu)?,
             edge_reg: EdgeReg::new(&gpu, n / 4)?,
             depth_tv: DepthTv::new(&gpu, n_tv)?,
             tv_poses,
@@ -493,6 +499,13 @@ impl Trainer {
         let bufs = &self.bufs;
         let renderer = self.random_bg_renderer.as_ref().unwrap_or(&self.model.renderer);
         let mut enc = gpu.encoder();
+        // Rays cut by the sample capacity render without their far samples: out of
+        // every loss (their weight and their patch's edge weight to 0).
+        let wanted = self.model.sampler.wanted_counts();
+        if let Some(wanted) = wanted {
+            let pixels = reg.is_some().then_some(&self.edge_reg.pixel);
+            self.drop_truncated.record(&mut enc, &bufs.batch.ranges, wanted, &self.targets, pixels, n);
+        }
         renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, bg_seed)?;
         let lambda_color = self.config().reg.lambda_color;
         self.photometric.record(&mut enc, &bufs.render_out.rays, &self.targets, &self.d_rays, n_all, n as f32, lambda_color);
@@ -517,7 +530,8 @@ impl Trainer {
         // The loss is checked before anything touches the parameters: a non-finite
         // loss need not give non-finite gradients (activations can flush NaN), so
         // Adam's own skip of non-finite gradients is not enough on its own.
-        let mse = self.photometric.mse(&gpu, n as usize, n as f32)?;
+        let rays_dropped = if wanted.is_some() { self.drop_truncated.dropped(&gpu)? } else { 0 };
+        let mse = self.photometric.mse(&gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
         let reg_losses = if reg.is_some() { self.edge_reg.losses(&gpu, n / 4)? } else { EdgeRegLosses::default() };
         let loss_tv = if tv_weight.is_some() { self.depth_tv.loss(&gpu, n_tv)? } else { 0.0 };
         for (value, what) in [(mse, "the photometric loss"), (reg_losses.depth, "L_z"), (reg_losses.normal, "L_n"), (loss_tv, "the depth TV")] {
@@ -564,6 +578,7 @@ impl Trainer {
             occupied_fraction: update.map(|u| u.occupied_cells as f32 / n_cells),
             loss_tv,
             lambda_tv,
+            rays_dropped,
         })
     }
 
