@@ -8,7 +8,7 @@ use glam::Vec3;
 use super::reference::{PatchRay, losses, losses_given_means, patch_means};
 use super::*;
 use crate::field::grid::tests::{AABB, randomize, small_config};
-use crate::field::grid::{SplitMix64, TABLE_NAME};
+use crate::field::grid::SplitMix64;
 use crate::field::{Field, GridField};
 use crate::gpu::test_gpu;
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer, reference as render_ref};
@@ -168,10 +168,8 @@ fn end_to_end(variant: RegVariant) {
     let gpu_loss = reg.losses(&gpu, n_patches as u32).unwrap();
     field.zero_grads(&gpu);
     field.backward(&gpu, &batch, &grads, true).unwrap();
-    let groups = field.params();
-    let table_grad: Vec<f32> = groups.iter().find(|g| g.name == TABLE_NAME).unwrap().grads.read(&gpu).unwrap();
-    let mlp_grad: Vec<f32> = groups.iter().find(|g| g.name != TABLE_NAME).unwrap().grads.read(&gpu).unwrap();
-    drop(groups);
+    let [(_, table_grad), (_, mlp_grad)] = field.buffers();
+    let (table_grad, mlp_grad) = (table_grad.read(&gpu).unwrap(), mlp_grad.read(&gpu).unwrap());
 
     // CPU: the same chain in f64.
     let model = field.reference(&gpu).unwrap();
