@@ -203,10 +203,17 @@ fn edge_regularizers_lower_their_losses_on_three_views() {
 
 #[test]
 fn a_resumed_model_renders_like_the_trained_one() {
-    // Past the occupancy grid's warm-up, regular updates refresh only part of the grid;
-    // a resumed model (empty grid) must still rebuild all of it before rendering.
+    // The checkpoint carries the occupancy grid, so a resumed model skips exactly the
+    // cells training skipped: the same samples and the same image. A checkpoint without
+    // it (older builds) gets the grid rebuilt from the field, every cell re-queried
+    // (past the warm-up, regular updates refresh only part of the grid).
     let mut config = tiny_config("smooth", 12);
     config.set("sampler.warmup_steps=2").unwrap();
+    // Twelve steps leave the field's density near its initial 1 almost everywhere: a
+    // threshold of density 1 (0.02 opacity per 0.02 step) splits the grid roughly in two.
+    config.set("sampler.decay=0.5").unwrap();
+    config.set("sampler.update_interval=2").unwrap();
+    config.set("sampler.threshold=0.02").unwrap();
     let gpu = test_gpu(false);
     let mut scene = load(&config);
     scene.split.test.truncate(1);
@@ -215,9 +222,26 @@ fn a_resumed_model_renders_like_the_trained_one() {
         trainer.step().unwrap();
     }
     let (trained, _) = trainer.evaluate().unwrap();
-    let mut resumed = Trainer::resume(gpu, scene, trainer.checkpoint().unwrap(), None).unwrap();
+    let ckpt = trainer.checkpoint().unwrap();
+    let saved = ckpt.occupancy.clone().expect("an updated grid is saved");
+    assert_eq!(saved.len(), 32usize.pow(3));
+    assert!(trainer.model.grid.occupied_cells() < saved.len() as u32, "the test needs a grid that skips something");
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("checkpoint.safetensors");
+    ckpt.save(&path).unwrap();
+    let mut resumed = Trainer::resume(gpu.clone(), scene.clone(), Checkpoint::load(&path).unwrap(), None).unwrap();
+    assert_eq!(resumed.model.grid.occupancy_bits(), trainer.model.grid.occupancy_bits(), "restored bitfield");
     let (again, _) = resumed.evaluate().unwrap();
-    eprintln!("trained {:.2} dB, resumed {:.2} dB", trained.mean_psnr, again.mean_psnr);
+    eprintln!("trained {:.3} dB at {:.2} samples/ray, resumed {:.3} dB at {:.2}", trained.mean_psnr, trained.mean_samples_per_ray, again.mean_psnr, again.mean_samples_per_ray);
+    assert_eq!(again.mean_samples_per_ray, trained.mean_samples_per_ray);
+    assert!((trained.mean_psnr - again.mean_psnr).abs() < 1e-3, "{} vs {}", trained.mean_psnr, again.mean_psnr);
+
+    let mut older = Checkpoint::load(&path).unwrap();
+    older.occupancy = None;
+    let mut rebuilt = Trainer::resume(gpu, scene, older, None).unwrap();
+    let (again, _) = rebuilt.evaluate().unwrap();
+    eprintln!("rebuilt grid: {:.3} dB, occupied {} (trained {})", again.mean_psnr, rebuilt.model.grid.occupied_cells(), trainer.model.grid.occupied_cells());
     assert!((trained.mean_psnr - again.mean_psnr).abs() < 0.2, "{} vs {}", trained.mean_psnr, again.mean_psnr);
 }
 

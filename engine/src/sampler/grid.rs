@@ -124,6 +124,9 @@ pub struct OccupancyGrid {
     host_bits: Vec<u32>,
     occupied: GpuBuffer<u32>,
     n_occupied: u32,
+    /// Whether any update (or [`OccupancyGrid::restore_density`]) has run: before, the
+    /// density buffer is all zero and every cell counts as occupied.
+    updated: bool,
     bvh: BrickBvh,
     gpu_nodes: GpuBuffer<GpuBvhNode>,
     gpu_prims: GpuBuffer<GpuBvhNode>,
@@ -156,6 +159,7 @@ impl OccupancyGrid {
             host_bits: Vec::new(),
             occupied: GpuBuffer::zeros(gpu, "occupied cells", 0)?,
             n_occupied: 0,
+            updated: false,
             bvh: BrickBvh::default(),
             gpu_nodes: GpuBuffer::zeros(gpu, "brick bvh nodes", 0)?,
             gpu_prims: GpuBuffer::zeros(gpu, "brick boxes", 0)?,
@@ -238,6 +242,7 @@ impl OccupancyGrid {
         enc.submit();
         let bits = self.bits.read(gpu)?;
         let mean_density = self.sum.read(gpu)?[0] / n_cells as f32;
+        self.updated = true;
         let changed = bits != self.host_bits;
         if changed {
             self.rebuild(gpu, bits)?;
@@ -248,6 +253,33 @@ impl OccupancyGrid {
             occupied_bricks: self.bvh.bricks.len() as u32,
             changed,
         })
+    }
+
+    /// The cell densities to save with a checkpoint: `None` before the first update
+    /// (the grid is then "all occupied", which its zero densities do not say).
+    pub fn export_density(&self, gpu: &Gpu) -> Result<Option<Vec<f32>>, SamplerError> {
+        if !self.updated {
+            return Ok(None);
+        }
+        Ok(Some(self.read_density(gpu)?))
+    }
+
+    /// Restores densities saved by [`OccupancyGrid::export_density`] and derives the
+    /// bitfield, occupied list and BVH from them exactly as an update would (an update
+    /// that queries no cell). Errors if `density` does not have one value per cell.
+    pub fn restore_density(&mut self, gpu: &Gpu, density: &[f32]) -> Result<GridUpdate, SamplerError> {
+        if density.len() != self.geom.n_cells as usize {
+            return Err(SamplerError::Config(format!(
+                "{} saved occupancy densities for a grid of {} cells (resolution {})",
+                density.len(),
+                self.geom.n_cells,
+                self.geom.res
+            )));
+        }
+        self.density.write(gpu, density);
+        let none_u32 = GpuBuffer::<u32>::zeros(gpu, "no query cells", 1)?;
+        let none_f32 = GpuBuffer::<f32>::zeros(gpu, "no query densities", 1)?;
+        self.update(gpu, &none_u32, &none_f32, 0)
     }
 
     /// Rebuilds the occupied list and the brick BVH from `bits` and uploads them.

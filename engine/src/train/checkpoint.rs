@@ -2,7 +2,10 @@
 //! state and, in its metadata, the format tag, step, backend and the run config.
 //!
 //! Layout (all tensors `F32`): `field.<name>` for every array of `Field::export`,
-//! `adam.*` for every array of `Adam::export_state`. Metadata keys: `format`
+//! `adam.*` for every array of `Adam::export_state`, and `occupancy.density` (the
+//! occupancy grid's EMA densities, `resolution^3` in x-fastest order; absent from
+//! checkpoints of uniform-mode runs and of builds before it was added, whose grid is
+//! then rebuilt from the field). Metadata keys: `format`
 //! (`edgenerf-checkpoint`), `version` (`1`), `step`, `backend`, `config` (JSON of the
 //! [`RunConfig`]).
 //!
@@ -28,7 +31,14 @@ pub struct Checkpoint {
     pub config: RunConfig,
     pub field: Vec<NamedArray>,
     pub optimizer: Vec<(String, Vec<f32>)>,
+    /// The occupancy grid's densities: restoring them makes a resumed or rendered run
+    /// skip exactly the space training skipped (a grid rebuilt from the field by one
+    /// query per cell differs, and the field was trained with the grid it had).
+    pub occupancy: Option<Vec<f32>>,
 }
+
+/// Tensor name of [`Checkpoint::occupancy`].
+const OCCUPANCY: &str = "occupancy.density";
 
 fn corrupt(path: &Path, message: impl std::fmt::Display) -> TrainError {
     TrainError::Checkpoint { path: path.to_path_buf(), message: message.to_string() }
@@ -43,6 +53,9 @@ impl Checkpoint {
         }
         for (name, data) in &self.optimizer {
             bytes.push((name.clone(), bytemuck::cast_slice(data).to_vec(), vec![data.len()]));
+        }
+        if let Some(d) = &self.occupancy {
+            bytes.push((OCCUPANCY.to_string(), bytemuck::cast_slice(d).to_vec(), vec![d.len()]));
         }
         let views = bytes
             .iter()
@@ -79,16 +92,21 @@ impl Checkpoint {
         let tensors = SafeTensors::deserialize(&data).map_err(|e| corrupt(path, e))?;
         let mut field = Vec::new();
         let mut optimizer = Vec::new();
+        let mut occupancy = None;
         for (name, view) in tensors.tensors() {
             if view.dtype() != Dtype::F32 {
                 return Err(corrupt(path, format!("tensor {name} is {:?}, expected F32", view.dtype())));
             }
             let values: Vec<f32> = bytemuck::pod_collect_to_vec(view.data());
+            if name == OCCUPANCY {
+                occupancy = Some(values);
+                continue;
+            }
             match name.strip_prefix("field.") {
                 Some(n) => field.push(NamedArray { name: n.to_string(), shape: view.shape().to_vec(), data: values }),
                 None => optimizer.push((name, values)),
             }
         }
-        Ok(Checkpoint { step, config, field, optimizer })
+        Ok(Checkpoint { step, config, field, optimizer, occupancy })
     }
 }

@@ -51,7 +51,7 @@ use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, Geo
 use crate::metrics::image::image_metrics;
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
 use crate::render::{Background, RenderConfig, RenderError, Renderer, random_background};
-use crate::sampler::SamplerError;
+use crate::sampler::{SamplerError, SamplerMode};
 use crate::samples::{self as samples_gpu, FieldGrads, RayOutput};
 
 pub use checkpoint::Checkpoint;
@@ -120,8 +120,9 @@ pub struct StepStats {
     pub samples_per_ray: f32,
     /// Samples the rays wanted beyond the batch capacity (0 when nothing was cut).
     pub samples_truncated: u32,
-    /// Occupied fraction of the occupancy grid after this step's update, if any.
-    pub occupied_fraction: Option<f32>,
+    /// Fraction of the occupancy grid's cells marked occupied as of this step (1 before
+    /// the first update, and in uniform mode, where the grid is never updated).
+    pub occupied_fraction: f32,
     /// RegNeRF's depth TV on the random-pose patches (0 when inactive) and its weight.
     pub loss_tv: f32,
     pub lambda_tv: f32,
@@ -132,13 +133,13 @@ pub struct StepStats {
 
 impl StepStats {
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -155,7 +156,8 @@ impl StepStats {
             elapsed_s,
             self.loss_tv,
             self.lambda_tv,
-            self.rays_dropped
+            self.rays_dropped,
+            self.occupied_fraction
         )
     }
 }
@@ -168,6 +170,8 @@ pub struct Evaluation {
     /// Mean of the per-view PSNRs (the convention of NeRF papers), and of the SSIMs.
     pub mean_psnr: f32,
     pub mean_ssim: f32,
+    /// Field samples per pixel ray of the test renders (the sampler's cost at render time).
+    pub mean_samples_per_ray: f32,
     /// Mean absolute depth error (world units) over all GT pixels, outside and inside
     /// the GT edge band (within `dilate_px` of a GT depth/normal discontinuity).
     pub mean_depth_abs_error: Option<f32>,
@@ -190,6 +194,8 @@ pub struct ViewEvaluation {
     pub view: usize,
     pub psnr: f32,
     pub ssim: f32,
+    /// Field samples per pixel ray of this render.
+    pub samples_per_ray: f32,
     /// Geometry against ground truth (scenes with GT depth or normals; depth only for
     /// world-space scenes). The rendered depth is [`RenderedView::terminated_depth`]
     /// (expected ray distance given termination), the normals the renormalised
@@ -226,7 +232,8 @@ pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> Result<ViewEv
     } else {
         None
     };
-    Ok(ViewEvaluation { view: v, psnr: image.psnr as f32, ssim: image.ssim as f32, geometry })
+    let samples_per_ray = r.samples as f32 / (r.width * r.height).max(1) as f32;
+    Ok(ViewEvaluation { view: v, psnr: image.psnr as f32, ssim: image.ssim as f32, samples_per_ray, geometry })
 }
 
 impl Evaluation {
@@ -238,6 +245,7 @@ impl Evaluation {
         Evaluation {
             mean_psnr: mean_of(per_view.iter().map(|e| Some(e.psnr as f64))).unwrap_or(0.0),
             mean_ssim: mean_of(per_view.iter().map(|e| Some(e.ssim as f64))).unwrap_or(0.0),
+            mean_samples_per_ray: mean_of(per_view.iter().map(|e| Some(e.samples_per_ray as f64))).unwrap_or(0.0),
             mean_depth_abs_error: depth(|d| d.all.map(|e| e.abs)),
             mean_depth_abs_error_non_edge: depth(|d| d.non_edge.map(|e| e.abs)),
             mean_depth_abs_error_edge: depth(|d| d.edge.map(|e| e.abs)),
@@ -361,13 +369,21 @@ impl Trainer {
     }
 
     /// Resumes from a checkpoint: parameters, optimizer state and step; the occupancy
-    /// grid is rebuilt from the restored field. `masks` as in [`Trainer::with_edge_masks`].
+    /// grid gets the checkpoint's densities (so renders skip what training skipped), or
+    /// is rebuilt from the restored field where the checkpoint has none. `masks` as in [`Trainer::with_edge_masks`].
     pub fn resume(gpu: Gpu, scene: Scene, ckpt: Checkpoint, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         let mut t = Trainer::with_edge_masks(gpu, scene, ckpt.config, masks)?;
         t.model.field.import(&t.gpu, &ckpt.field)?;
         t.adam.import_state(&t.gpu, &ckpt.optimizer)?;
         t.step = ckpt.step;
-        t.model.update_grid(&t.gpu, t.step, t.grid_seed(), true)?;
+        match &ckpt.occupancy {
+            Some(density) if t.config().sampler.mode == SamplerMode::Occupancy => {
+                t.model.grid.restore_density(&t.gpu, density)?;
+            }
+            _ => {
+                t.model.update_grid(&t.gpu, t.step, t.grid_seed(), true)?;
+            }
+        }
         Ok(t)
     }
 
@@ -455,7 +471,7 @@ impl Trainer {
             });
         }
         self.apply_level_anneal();
-        let update = self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
+        self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
         let patches = self.config().train.batch == BatchKind::Patches && batch.reg.len() == n as usize;
         let reg = if patches { self.config().reg.weights_at(step, is_dtu(&self.scene)) } else { None };
         let normals = reg.is_some_and(|w| w.lambda_normal > 0.0);
@@ -575,7 +591,7 @@ impl Trainer {
             samples: counts[0],
             samples_per_ray: counts[0] as f32 / n_all as f32,
             samples_truncated: counts[1].saturating_sub(counts[0]),
-            occupied_fraction: update.map(|u| u.occupied_cells as f32 / n_cells),
+            occupied_fraction: self.model.grid.occupied_cells() as f32 / n_cells,
             loss_tv,
             lambda_tv,
             rays_dropped,
@@ -589,6 +605,7 @@ impl Trainer {
             config: self.config().clone(),
             field: self.model.field.export(&self.gpu)?,
             optimizer: self.adam.export_state(&self.gpu)?,
+            occupancy: self.model.grid.export_density(&self.gpu)?,
         })
     }
 

@@ -26,6 +26,11 @@ pub struct Args {
     /// checks, e.g. in scripts comparing backends).
     #[arg(long, value_parser = ["grid", "mlp"])]
     backend: Option<String>,
+    /// Sample placement for this render (default: the run's, the occupancy grid).
+    /// `uniform` marches every step of each ray: the "without" side of the
+    /// empty-space-skipping comparison (same samples where space is occupied).
+    #[arg(long, value_parser = ["occupancy", "uniform"])]
+    sampler: Option<String>,
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
@@ -36,6 +41,9 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         if got != want {
             bail!("{} was trained with the {} backend, not {b} (--backend {b})", args.checkpoint.display(), got.name());
         }
+    }
+    if let Some(mode) = &args.sampler {
+        trainer.model.config.sampler.mode = serde_json::from_value(serde_json::Value::String(mode.clone()))?;
     }
     let views = split_views(&trainer.scene, &args.split)?;
     if args.split == "test" {
@@ -104,10 +112,11 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
         );
     }
     println!(
-        "test PSNR {:.2} dB, SSIM {:.3} (mean over {} views)",
+        "test PSNR {:.2} dB, SSIM {:.3} (mean over {} views); {:.1} samples per ray",
         eval.mean_psnr,
         eval.mean_ssim,
         eval.per_view.len(),
+        eval.mean_samples_per_ray,
     );
     if eval.mean_depth_abs_error.is_some() || eval.mean_normal_angle_deg.is_some() {
         println!(
