@@ -46,12 +46,13 @@
 //!   (about 1, above the threshold at coarse steps); those samples carry weight ~0, and
 //!   only a transmittance cut-off (nerfacc's `early_stop_eps`, not implemented) would
 //!   drop them. Forward-facing scenes, whose rays end on the box's far wall, are
-//!   mostly such space: there the grid saves 15-30 % of the test views' samples, on
-//!   the object scenes 75-85 % (README, "Dense views: the engine's baseline"). The EMA time constant (`decay` per
-//!   `update_interval` steps) should be short against the schedule: a cell whose
-//!   density the field has lowered from `d_old` keeps counting as occupied for
-//!   `log(d_threshold / d_old) / log(decay)` more updates (the short-schedule configs
-//!   under `tools/configs/` use 0.8).
+//!   mostly such space: there the grid saves 8-11 % of the test views' samples, on
+//!   the object scenes 70-80 % (README, "Dense views: the engine's baseline"). The
+//!   EMA time constant (`decay` per `update_interval` steps) should be short against
+//!   the schedule: a cell whose density the field has lowered from `d_old` keeps
+//!   counting as occupied for `log(d_threshold / d_old) / log(decay)` more updates
+//!   (the short-schedule configs under `tools/configs/` use 0.9; faster forgetting
+//!   loses thin structures that one jittered query per cell misses).
 //! * **Bricks of 8^3 cells** (`brick_size`): the BVH is built over the AABBs of bricks
 //!   holding at least one occupied cell. 8^3 keeps the BVH small (at most 16^3 = 4096
 //!   leaves at 128^3, built on the CPU in milliseconds whenever the bitfield changes)
