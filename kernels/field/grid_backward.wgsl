@@ -46,6 +46,7 @@ fn store(r: u32, dim4: u32, local: u32, v: ptr<function, Vec64>) {
 
 @compute @workgroup_size(WG_SIZE)
 fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let local = thread_index(gid, nwg);
     if (local >= P.chunk_len) {
         return;

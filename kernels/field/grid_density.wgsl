@@ -10,6 +10,7 @@
 
 @compute @workgroup_size(WG_SIZE)
 fn density(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let i = thread_index(gid, nwg);
     if (i >= P.n) {
         return;

@@ -13,7 +13,7 @@ struct FinalizeParams {
     width: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: FinalizeParams;
+@group(0) @binding(0) var<storage, read> params: FinalizeParams;
 @group(0) @binding(1) var<storage, read> weights: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> m: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> grad: array<f32>;

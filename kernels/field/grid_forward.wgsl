@@ -14,6 +14,7 @@
 
 @compute @workgroup_size(WG_SIZE)
 fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let i = thread_index(gid, nwg);
     if (i >= min(count[0], P.n)) {
         return;

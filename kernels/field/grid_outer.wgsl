@@ -29,13 +29,18 @@ struct OuterParams {
     capacity: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: OuterParams;
+@group(0) @binding(0) var<storage, read> params_buffer: OuterParams;
+// Copied to private memory as the first statement of each entry point, before any
+// branch (see gpu/kernel.rs, "Uniform buffers": storage reads inside branches are
+// lane by lane on lavapipe).
+var<private> params: OuterParams;
 @group(0) @binding(1) var<storage, read> count: array<u32>;
 @group(0) @binding(2) var<storage, read> scratch: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> grad: array<AtomicF32>;
 
 @compute @workgroup_size(WG_SIZE)
 fn outer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    params = params_buffer;
     let t = thread_index(gid, nwg);
     let tiles = params.tiles_o * params.tiles_i;
     let tile = t % tiles;

@@ -97,6 +97,7 @@ fn write_direction(s: u32, dir: vec3<f32>) {
 
 @compute @workgroup_size(WG_SIZE)
 fn encode_samples(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let s = thread_index(gid, nwg);
     if (s >= P.n) {
         return;
@@ -112,6 +113,7 @@ fn encode_samples(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
 
 @compute @workgroup_size(WG_SIZE)
 fn encode_points(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let s = thread_index(gid, nwg);
     if (s >= P.n) {
         return;

@@ -51,7 +51,11 @@ const FLAG_BIAS_COL: u32 = 16u;
 const TILE: u32 = 64u;
 const TK: u32 = 16u;
 
-@group(0) @binding(0) var<uniform> G: Gemm;
+@group(0) @binding(0) var<storage, read> G_buffer: Gemm;
+// Copied to private memory as the first statement of each entry point, before any
+// branch (see gpu/kernel.rs, "Uniform buffers": storage reads inside branches are
+// lane by lane on lavapipe).
+var<private> G: Gemm;
 @group(0) @binding(1) var<storage, read> a: array<f32>;
 @group(0) @binding(2) var<storage, read> b: array<f32>;
 @group(0) @binding(3) var<storage, read> mask: array<f32>;
@@ -166,6 +170,7 @@ fn col(lid: vec3<u32>, n0: u32, q: u32) -> u32 {
 
 @compute @workgroup_size(8, 8)
 fn forward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>) {
+    G = G_buffer;
     let m0 = wid.y * TILE;
     let n0 = wid.x * TILE;
     gemm_tile(lid, m0, n0, 0u, G.k);
@@ -197,6 +202,7 @@ fn forward(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) 
 
 @compute @workgroup_size(8, 8)
 fn grad_input(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>) {
+    G = G_buffer;
     let m0 = wid.y * TILE;
     let n0 = wid.x * TILE;
     gemm_tile(lid, m0, n0, 0u, G.k);
@@ -223,6 +229,7 @@ fn grad_input(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_i
 
 @compute @workgroup_size(8, 8)
 fn weight_grad(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>) {
+    G = G_buffer;
     let m0 = wid.y * TILE;
     let n0 = wid.x * TILE;
     let k_begin = wid.z * G.k_chunk;
@@ -246,6 +253,7 @@ fn weight_grad(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_
 // or its bias (n == bias_col). Binding a: the partials; c: the gradient buffer.
 @compute @workgroup_size(64)
 fn reduce(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    G = G_buffer;
     let idx = gid.x + gid.y * nwg.x * 64u;
     if (idx >= G.m * G.n) {
         return;

@@ -16,6 +16,7 @@
 
 @compute @workgroup_size(WG_SIZE)
 fn heads_backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    P = P_buffer;
     let s = thread_index(gid, nwg);
     if (s >= P.n) {
         return;

@@ -30,7 +30,11 @@ const FLAG_IPE: u32 = 1u;
 const FLAG_NORMALS: u32 = 2u;
 const FLAG_COLOR: u32 = 4u;
 
-@group(0) @binding(0) var<uniform> P: MlpParams;
+@group(0) @binding(0) var<storage, read> P_buffer: MlpParams;
+// Copied to private memory as the first statement of each entry point, before any
+// branch (see gpu/kernel.rs, "Uniform buffers": storage reads inside branches are
+// lane by lane on lavapipe).
+var<private> P: MlpParams;
 
 fn softplus(x: f32) -> f32 {
     return max(x, 0.0) + log(1.0 + exp(-abs(x)));

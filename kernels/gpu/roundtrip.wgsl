@@ -11,7 +11,7 @@ struct Params {
     _pad: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> values: array<f32>;
 @group(0) @binding(2) var<storage, read_write> scaled: array<f32>;
 @group(0) @binding(3) var<storage, read_write> sums: array<AtomicF32>;

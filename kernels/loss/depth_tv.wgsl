@@ -25,7 +25,7 @@ struct Params {
     _pad1: f32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<RayOutput>;
 @group(0) @binding(2) var<storage, read> in_rays: array<Ray>;
 @group(0) @binding(3) var<storage, read> z_scale: array<f32>;

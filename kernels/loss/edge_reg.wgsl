@@ -31,7 +31,7 @@ struct Params {
     tau_normal: f32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<RayOutput>;
 // Per ray: (e, z_scale).
 @group(0) @binding(2) var<storage, read> pixel: array<vec2<f32>>;

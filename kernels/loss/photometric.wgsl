@@ -14,7 +14,7 @@ struct Params {
     _pad1: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<RayOutput>;
 // Target colour and the ray's weight in w (0 drops the ray).
 @group(0) @binding(2) var<storage, read> targets: array<vec4<f32>>;

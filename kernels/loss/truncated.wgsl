@@ -15,7 +15,7 @@ struct Params {
     _pad1: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> ranges: array<SampleRange>;
 @group(0) @binding(2) var<storage, read> wanted: array<u32>;
 @group(0) @binding(3) var<storage, read_write> targets: array<vec4<f32>>;

@@ -32,7 +32,7 @@ const FLAG_L2: u32 = 2u;
 const FLAG_DECOUPLED: u32 = 4u;
 const FLAG_SKIP_NONFINITE: u32 = 8u;
 
-@group(0) @binding(0) var<uniform> cfg: AdamParams;
+@group(0) @binding(0) var<storage, read> cfg: AdamParams;
 @group(0) @binding(1) var<storage, read_write> weights: array<f32>;
 @group(0) @binding(2) var<storage, read> grads: array<f32>;
 @group(0) @binding(3) var<storage, read_write> moment1: array<f32>;

@@ -52,7 +52,7 @@ fn reduce_workgroup(lid: u32) {
     }
 }
 
-@group(0) @binding(0) var<uniform> pp: PartialParams;
+@group(0) @binding(0) var<storage, read> pp: PartialParams;
 @group(0) @binding(1) var<storage, read> grads_in: array<f32>;
 @group(0) @binding(2) var<storage, read_write> partials_out: array<vec4<f32>>;
 
@@ -88,7 +88,7 @@ fn partial_sums(
     }
 }
 
-@group(0) @binding(0) var<uniform> fp: FinalParams;
+@group(0) @binding(0) var<storage, read> fp: FinalParams;
 @group(0) @binding(1) var<storage, read> partials_in: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> stats_out: array<f32>;
 
@@ -125,7 +125,7 @@ fn finalize(@builtin(local_invocation_index) lid: u32) {
     }
 }
 
-@group(0) @binding(0) var<uniform> cp: ClipParams;
+@group(0) @binding(0) var<storage, read> cp: ClipParams;
 @group(0) @binding(1) var<storage, read> stats_in: array<f32>;
 @group(0) @binding(2) var<storage, read_write> grads_inout: array<f32>;
 

@@ -48,7 +48,11 @@ struct RayAux {
     n_contrib: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params_buffer: Params;
+// Copied to private memory as the first statement of each entry point, before any
+// branch (see gpu/kernel.rs, "Uniform buffers": storage reads inside branches are
+// lane by lane on lavapipe).
+var<private> params: Params;
 @group(0) @binding(1) var<storage, read> ranges: array<SampleRange>;
 @group(0) @binding(2) var<storage, read> samples: array<Sample>;
 @group(0) @binding(3) var<storage, read> density: array<f32>;
@@ -101,6 +105,7 @@ fn background_for(ray: u32) -> vec3<f32> {
 
 @compute @workgroup_size(WG_SIZE)
 fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    params = params_buffer;
     let r = thread_index(gid, nwg);
     if (r >= params.n_rays) {
         return;
@@ -142,6 +147,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 
 @compute @workgroup_size(WG_SIZE)
 fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    params = params_buffer;
     let r = thread_index(gid, nwg);
     if (r >= params.n_rays) {
         return;

@@ -32,7 +32,7 @@ struct CountParams {
     threshold: f32,
 }
 
-@group(0) @binding(0) var<uniform> qp: QueryParams;
+@group(0) @binding(0) var<storage, read> qp: QueryParams;
 @group(0) @binding(1) var<storage, read> occupied: array<u32>;
 @group(0) @binding(2) var<storage, read_write> query_pos: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> query_cell: array<u32>;
@@ -68,7 +68,7 @@ fn query_points(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     query_cell[i] = cell;
 }
 
-@group(0) @binding(0) var<uniform> cp: CountParams;
+@group(0) @binding(0) var<storage, read> cp: CountParams;
 @group(0) @binding(1) var<storage, read> upd_cell: array<u32>;
 @group(0) @binding(2) var<storage, read> upd_density: array<f32>;
 @group(0) @binding(3) var<storage, read_write> scratch_max: array<atomic<u32>>;
@@ -90,7 +90,7 @@ fn scatter_max(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     }
 }
 
-@group(0) @binding(0) var<uniform> ep: CountParams;
+@group(0) @binding(0) var<storage, read> ep: CountParams;
 @group(0) @binding(1) var<storage, read_write> scratch: array<u32>;
 @group(0) @binding(2) var<storage, read_write> density_grid: array<f32>;
 
@@ -108,7 +108,7 @@ fn ema(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) n
     }
 }
 
-@group(0) @binding(0) var<uniform> rp: CountParams;
+@group(0) @binding(0) var<storage, read> rp: CountParams;
 @group(0) @binding(1) var<storage, read> reduce_in: array<f32>;
 @group(0) @binding(2) var<storage, read_write> reduce_out: array<f32>;
 
@@ -141,7 +141,7 @@ fn reduce_sum(
     }
 }
 
-@group(0) @binding(0) var<uniform> tp: CountParams;
+@group(0) @binding(0) var<storage, read> tp: CountParams;
 @group(0) @binding(1) var<storage, read> grid_values: array<f32>;
 @group(0) @binding(2) var<storage, read> grid_sum: array<f32>;
 @group(0) @binding(3) var<storage, read_write> bits: array<u32>;

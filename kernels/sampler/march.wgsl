@@ -28,7 +28,11 @@ struct Params {
     seed: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params_buffer: Params;
+// Copied to private memory as the first statement of each entry point, before any
+// branch (see gpu/kernel.rs, "Uniform buffers": storage reads inside branches are
+// lane by lane on lavapipe).
+var<private> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<Ray>;
 @group(0) @binding(2) var<storage, read> intervals: array<vec2<f32>>;
 @group(0) @binding(3) var<storage, read> interval_count: array<u32>;
@@ -114,6 +118,7 @@ fn march(r: u32, write: bool, start: u32, allowed: u32) -> u32 {
 // n_rays + 1 counts ends with the total).
 @compute @workgroup_size(WG_SIZE)
 fn count_samples(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    params = params_buffer;
     let r = thread_index(gid, nwg);
     if (r == 0u) {
         counts[params.n_rays] = 0u;
@@ -128,6 +133,7 @@ fn count_samples(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
 // dropped (a ray straddling it keeps its first samples, later rays get none).
 @compute @workgroup_size(WG_SIZE)
 fn write_samples(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    params = params_buffer;
     let r = thread_index(gid, nwg);
     if (r == 0u) {
         let total = offsets[params.n_rays];

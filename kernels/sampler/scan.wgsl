@@ -15,7 +15,7 @@ struct Params {
     _pad1: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> scan_in: array<u32>;
 @group(0) @binding(2) var<storage, read_write> scan_out: array<u32>;
 @group(0) @binding(3) var<storage, read_write> block_sums: array<u32>;
@@ -65,7 +65,7 @@ fn scan_blocks(
     }
 }
 
-@group(0) @binding(0) var<uniform> add_params: Params;
+@group(0) @binding(0) var<storage, read> add_params: Params;
 @group(0) @binding(1) var<storage, read_write> add_out: array<u32>;
 @group(0) @binding(2) var<storage, read> block_offsets: array<u32>;
 

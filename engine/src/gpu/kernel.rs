@@ -17,6 +17,31 @@
 //! A kernel's owner (a thin Rust wrapper in the room that uses it) declares a
 //! [`KernelSpec`]: the file, the entry point and the bind layout of group 0, in
 //! binding order. Nothing else binds that kernel.
+//!
+//! # Uniform buffers
+//! A dispatch's parameters live in a small read-only storage buffer
+//! ([`Binding::Params`], made by [`Encoder::params`]), never in `var<uniform>`. The
+//! reason is Mesa's lavapipe, the driver CI and every GPU-less machine run on: it
+//! inlines the values of uniform-buffer words that steer a branch or bound a loop into
+//! the shader and compiles that variant when the pipeline is bound. Mesa 22.3 (Debian
+//! 12) does so at *every* bind and never frees the variant (later versions cache one
+//! variant per distinct set of values, which grows just the same with per-step values):
+//! the field and sampler kernels were recompiled at each training step and the process
+//! grew by 3.6 MB per step (1.0 GB at step 200 of the demo, measured with `strace` on
+//! the LLVM JIT's mappings). The test `tests/train_memory.rs` guards against its return.
+//!
+//! [`Binding::Uniform`] remains for constant tables read alike by every thread and
+//! never steering control flow (the grid field's MLP weights, a test below checks the
+//! type): lavapipe reads a uniform buffer inside a branch with one vector gather but a
+//! storage buffer lane by lane, which made the field 1.5-1.7x slower with the weights in
+//! storage. For the same reason a kernel whose parameters are read in its hot loops
+//! copies them into a `var<private>` as its first statement, before any branch, where a
+//! storage read at a uniform address is a single broadcast load
+//! (`field/grid_lib.wgsl`).
+//!
+//! Loop bounds as pipeline `override` constants were measured and rejected for the
+//! grid field: lavapipe then unrolls the level and width loops completely, compiles
+//! for seconds and runs the field 1.2-1.7x slower.
 
 use std::borrow::Cow;
 
@@ -33,14 +58,18 @@ pub enum Binding {
     ReadOnly,
     /// `var<storage, read_write>`
     ReadWrite,
-    /// `var<uniform>`
+    /// `var<storage, read>` holding the dispatch's parameters (see the module doc,
+    /// "Uniform buffers").
+    Params,
+    /// `var<uniform>`: a constant table read by every thread alike (the grid field's
+    /// MLP weights), never parameters that steer control flow (module doc).
     Uniform,
 }
 
 /// Identifies a kernel and declares its bind layout.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct KernelSpec {
-    /// Path under `kernels/`, e.g. `"field/hash_encode.wgsl"`.
+    /// Path under `kernels/`, e.g. `"field/grid_forward.wgsl"`.
     pub file: &'static str,
     /// Entry point name.
     pub entry: &'static str,
@@ -171,10 +200,34 @@ pub fn validate(name: &str, float_atomics: bool) -> Result<naga::Module, GpuErro
     Ok(module)
 }
 
+impl KernelSpec {
+    /// Storage and uniform buffers of the bind layout against the device's per-stage
+    /// limits (wgpu would otherwise panic on the layout with a validation error).
+    pub fn check_limits(&self, limits: &wgpu::Limits) -> Result<(), GpuError> {
+        let storage = self.bindings.iter().filter(|b| !matches!(b, Binding::Uniform)).count() as u32;
+        let uniform = self.bindings.len() as u32 - storage;
+        for (kind, count, limit) in [
+            ("storage", storage, limits.max_storage_buffers_per_shader_stage),
+            ("uniform", uniform, limits.max_uniform_buffers_per_shader_stage),
+        ] {
+            if count > limit {
+                return Err(GpuError::TooManyBindings {
+                    kernel: format!("{}:{}", self.file, self.entry),
+                    kind,
+                    count,
+                    limit,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Kernel {
     pub(super) fn build(gpu: &Gpu, spec: &KernelSpec) -> Result<Kernel, GpuError> {
         // Validate first: naga's messages name the file and line.
         validate(spec.file, gpu.float_atomics())?;
+        spec.check_limits(gpu.limits())?;
         let src = preprocess(spec.file, gpu.float_atomics())?;
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(spec.file),
@@ -189,7 +242,7 @@ impl Kernel {
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Buffer {
                     ty: match b {
-                        Binding::ReadOnly => wgpu::BufferBindingType::Storage { read_only: true },
+                        Binding::ReadOnly | Binding::Params => wgpu::BufferBindingType::Storage { read_only: true },
                         Binding::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
                         Binding::Uniform => wgpu::BufferBindingType::Uniform,
                     },
@@ -231,12 +284,13 @@ impl<'g> Encoder<'g> {
         Self { gpu, encoder: gpu.device.create_command_encoder(&Default::default()) }
     }
 
-    /// A uniform buffer holding `value`, for a dispatch's parameters.
-    pub fn uniform<T: bytemuck::Pod>(&self, value: &T) -> wgpu::Buffer {
+    /// A read-only storage buffer holding `value`, a dispatch's parameters
+    /// ([`Binding::Params`]).
+    pub fn params<T: bytemuck::Pod>(&self, value: &T) -> wgpu::Buffer {
         self.gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("params"),
             contents: bytemuck::bytes_of(value),
-            usage: wgpu::BufferUsages::UNIFORM,
+            usage: wgpu::BufferUsages::STORAGE,
         })
     }
 
@@ -323,6 +377,56 @@ mod tests {
             }
         }
         assert!(failures.is_empty(), "kernels failing naga validation:\n{}", failures.join("\n\n"));
+    }
+
+    /// lavapipe recompiles (and leaks) a shader at every bind when uniform-buffer values
+    /// steer its control flow (module doc, "Uniform buffers"): parameters go to storage,
+    /// and a uniform buffer may only be a table of vec4<f32>.
+    #[test]
+    fn uniform_buffers_are_only_constant_tables() {
+        let mut tables = 0;
+        let mut offenders = Vec::new();
+        for (name, _) in KERNEL_SOURCES {
+            let module = validate(name, true).expect("validated in the test above");
+            for (_, g) in module.global_variables.iter().filter(|(_, g)| g.space == naga::AddressSpace::Uniform) {
+                let is_vec4_table = match &module.types[g.ty].inner {
+                    naga::TypeInner::Array { base, .. } => matches!(
+                        module.types[*base].inner,
+                        naga::TypeInner::Vector { size: naga::VectorSize::Quad, scalar: naga::Scalar::F32 }
+                    ),
+                    _ => false,
+                };
+                if is_vec4_table {
+                    tables += 1;
+                } else {
+                    offenders.push(format!("{name}: var<uniform> {}", g.name.clone().unwrap_or_default()));
+                }
+            }
+        }
+        assert!(offenders.is_empty(), "declare parameters as var<storage, read> (Binding::Params): {offenders:?}");
+        assert!(tables > 0, "the grid field's weight table is a uniform buffer; the check above saw none");
+    }
+
+    /// A layout above the adapter's per-stage limits is a clear error naming the
+    /// kernel, not a wgpu validation panic (SwiftShader allows 10 storage buffers).
+    #[test]
+    fn bind_layouts_over_the_device_limits_are_errors() {
+        let spec = KernelSpec {
+            file: "gpu/roundtrip.wgsl",
+            entry: "scatter_add",
+            bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite, Binding::Uniform],
+        };
+        let limits = wgpu::Limits { max_storage_buffers_per_shader_stage: 3, max_uniform_buffers_per_shader_stage: 1, ..Default::default() };
+        spec.check_limits(&limits).unwrap();
+        let tight = wgpu::Limits { max_storage_buffers_per_shader_stage: 2, ..limits.clone() };
+        match spec.check_limits(&tight) {
+            Err(GpuError::TooManyBindings { kernel, kind: "storage", count: 3, limit: 2 }) => {
+                assert_eq!(kernel, "gpu/roundtrip.wgsl:scatter_add")
+            }
+            other => panic!("expected a storage-limit error, got {other:?}"),
+        }
+        let no_uniform = wgpu::Limits { max_uniform_buffers_per_shader_stage: 0, ..limits };
+        assert!(matches!(spec.check_limits(&no_uniform), Err(GpuError::TooManyBindings { kind: "uniform", .. })));
     }
 
     #[test]

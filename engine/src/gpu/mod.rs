@@ -46,6 +46,11 @@ pub enum GpuError {
     RequestDevice { adapter: String, message: String },
     #[error("kernel {kernel} does not compile: {message}")]
     Shader { kernel: String, message: String },
+    #[error(
+        "kernel {kernel} binds {count} {kind} buffers, above this adapter's limit of {limit} per shader stage: \
+         use an adapter with a higher limit (`edgenerf info --check-gpu` shows the one in use; --adapter picks another)"
+    )]
+    TooManyBindings { kernel: String, kind: &'static str, count: u32, limit: u32 },
     #[error("no kernel named {0:?} under kernels/")]
     UnknownKernel(String),
     #[error("buffer {label:?} needs {bytes} bytes, above this device's storage binding limit of {limit} bytes")]
@@ -202,7 +207,9 @@ impl Gpu {
         if let Some(k) = self.kernels.lock().unwrap().get(spec) {
             return Ok(k.clone());
         }
+        let started = std::time::Instant::now();
         let kernel = Arc::new(Kernel::build(self, spec)?);
+        log::debug!("built kernel {}:{} in {:.0} ms", spec.file, spec.entry, started.elapsed().as_secs_f64() * 1e3);
         self.kernels.lock().unwrap().insert(spec.clone(), kernel.clone());
         Ok(kernel)
     }

@@ -8,7 +8,7 @@ use super::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
 const SPEC: KernelSpec = KernelSpec {
     file: "gpu/roundtrip.wgsl",
     entry: "scatter_add",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
 
 #[repr(C)]
@@ -35,7 +35,7 @@ pub fn scatter_add(gpu: &Gpu, values: &[f32], bins: u32, scale: f32) -> Result<S
     // Zero bits are 0.0 on both atomic paths.
     let sums = GpuBuffer::<f32>::zeros(gpu, "sums", bins as usize)?;
     let mut enc = gpu.encoder();
-    let params = enc.uniform(&Params { n: values.len() as u32, bins, scale, _pad: 0 });
+    let params = enc.params(&Params { n: values.len() as u32, bins, scale, _pad: 0 });
     enc.dispatch_threads(&kernel, &[&params, &input.buffer, &scaled.buffer, &sums.buffer], values.len() as u32);
     enc.submit();
     Ok(ScatterAdd { scaled: scaled.read(gpu)?, sums: sums.read(gpu)? })

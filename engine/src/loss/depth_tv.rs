@@ -42,7 +42,7 @@ const SPEC: KernelSpec = KernelSpec {
     file: "loss/depth_tv.wgsl",
     entry: "depth_tv",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
@@ -106,7 +106,7 @@ impl DepthTv {
         assert!(patch_size >= 2 && n_rays.is_multiple_of(patch_size * patch_size), "whole patches of side >= 2");
         assert!(outs.len() >= end && rays.len() >= end && d_rays.len() >= end);
         assert!(self.z_scale.len() >= n_rays as usize, "depth tv buffers for {} rays", self.z_scale.len());
-        let params = enc.uniform(&Params { n_rays, offset, patch_size, _pad0: 0, lambda, acc_weight, eps: OPACITY_EPS, _pad1: 0.0 });
+        let params = enc.params(&Params { n_rays, offset, patch_size, _pad0: 0, lambda, acc_weight, eps: OPACITY_EPS, _pad1: 0.0 });
         enc.dispatch_threads(
             &self.kernel,
             &[&params, &outs.buffer, &rays.buffer, &self.z_scale.buffer, &d_rays.buffer, &self.ray_loss.buffer],

@@ -56,7 +56,7 @@ use crate::samples::RayOutput;
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/edge_reg.wgsl",
     entry: "edge_reg",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
 
 /// Which definition of the losses (see the module doc).
@@ -230,7 +230,7 @@ impl EdgeReg {
         let n_rays = 4 * n_patches as usize;
         assert!(rays.len() >= n_rays && d_rays.len() >= n_rays && self.pixel.len() >= n_rays);
         assert!(self.patch_loss.len() >= n_patches as usize, "edge reg buffers for {} patches", self.patch_loss.len());
-        let params = enc.uniform(&Params {
+        let params = enc.params(&Params {
             n_patches,
             official: (w.variant == RegVariant::Official) as u32,
             _pad: [0; 2],

@@ -11,7 +11,7 @@ use crate::samples::RayOutput;
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/photometric.wgsl",
     entry: "photometric",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
 
 #[repr(C)]
@@ -50,7 +50,7 @@ impl Photometric {
         assert!(rays.len() >= n as usize && targets.len() >= n as usize && d_rays.len() >= n as usize);
         assert!(self.sq_error.len() >= n as usize, "photometric buffer for {} rays, batch of {n}", self.sq_error.len());
         let scale = if weight_sum > 0.0 { lambda / (3.0 * weight_sum) } else { 0.0 };
-        let params = enc.uniform(&Params { n_rays: n, scale, _pad: [0; 2] });
+        let params = enc.params(&Params { n_rays: n, scale, _pad: [0; 2] });
         enc.dispatch_threads(
             &self.kernel,
             &[&params, &rays.buffer, &targets.buffer, &d_rays.buffer, &self.sq_error.buffer],

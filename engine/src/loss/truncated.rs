@@ -24,7 +24,7 @@ const SPEC: KernelSpec = KernelSpec {
     file: "loss/truncated.wgsl",
     entry: "drop_truncated",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadWrite,
@@ -74,7 +74,7 @@ impl DropTruncated {
             assert!(p.len() >= n as usize && n.is_multiple_of(4), "patch pixels for every ray, whole patches");
         }
         enc.clear(&self.dropped.buffer);
-        let u = enc.uniform(&Params { n_rays: n, patches: pixels.is_some() as u32, _pad: [0; 2] });
+        let u = enc.params(&Params { n_rays: n, patches: pixels.is_some() as u32, _pad: [0; 2] });
         let pixel_buf = pixels.unwrap_or(&self.no_pixels);
         enc.dispatch_threads(
             &self.kernel,

@@ -36,7 +36,7 @@ const SPEC: KernelSpec = KernelSpec {
     file: "optim/adam.wgsl",
     entry: "adam_step",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadWrite, // weights
         Binding::ReadOnly,  // grads
         Binding::ReadWrite, // m
@@ -347,10 +347,10 @@ impl Adam {
                 _pad: [0; 3],
             };
             let state = &self.groups[idx];
-            let uniform = enc.uniform(&params);
+            let params_buf = enc.params(&params);
             enc.dispatch_threads(
                 &kernel,
-                &[&uniform, &g.params.buffer, &g.grads.buffer, &state.m.buffer, &state.v.buffer, stats],
+                &[&params_buf, &g.params.buffer, &g.grads.buffer, &state.m.buffer, &state.v.buffer, stats],
                 params.n,
             );
         }

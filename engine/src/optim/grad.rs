@@ -64,17 +64,17 @@ const FILE: &str = "optim/grad_norm.wgsl";
 const PARTIAL: KernelSpec = KernelSpec {
     file: FILE,
     entry: "partial_sums",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite],
 };
 const FINALIZE: KernelSpec = KernelSpec {
     file: FILE,
     entry: "finalize",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite],
 };
 const CLIP: KernelSpec = KernelSpec {
     file: FILE,
     entry: "clip_in_place",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite],
 };
 const MARK: KernelSpec = KernelSpec { file: FILE, entry: "mark_applied", bindings: &[Binding::ReadWrite] };
 
@@ -232,10 +232,10 @@ impl GradNorm {
                 blocks: b as u32,
                 clip_value: clip.max_value,
             };
-            let uniform = enc.uniform(&params);
+            let params_buf = enc.params(&params);
             // grid_1d counts 64-thread groups: ask for `b` workgroups, folded.
             let grid = grid_1d((b * 64) as u32, max_dim);
-            enc.dispatch(&partial, &[&uniform, &g.buffer, &self.partials.buffer], grid);
+            enc.dispatch(&partial, &[&params_buf, &g.buffer, &self.partials.buffer], grid);
             offset += b;
         }
         let params = FinalParams {
@@ -244,8 +244,8 @@ impl GradNorm {
             clip_value: clip.max_value,
             norm_eps: clip.norm_eps,
         };
-        let uniform = enc.uniform(&params);
-        enc.dispatch(&finalize, &[&uniform, &self.partials.buffer, &self.stats.buffer], [1, 1, 1]);
+        let params_buf = enc.params(&params);
+        enc.dispatch(&finalize, &[&params_buf, &self.partials.buffer, &self.stats.buffer], [1, 1, 1]);
         Ok(())
     }
 
@@ -261,8 +261,8 @@ impl GradNorm {
         let clip = gpu.kernel(&CLIP)?;
         let mark = gpu.kernel(&MARK)?;
         for g in grads {
-            let uniform = enc.uniform(&ClipParams { n: g.len() as u32, _pad: [0; 3] });
-            enc.dispatch_threads(&clip, &[&uniform, &self.stats.buffer, &g.buffer], g.len() as u32);
+            let params_buf = enc.params(&ClipParams { n: g.len() as u32, _pad: [0; 3] });
+            enc.dispatch_threads(&clip, &[&params_buf, &self.stats.buffer, &g.buffer], g.len() as u32);
         }
         enc.dispatch(&mark, &[&self.stats.buffer], [1, 1, 1]);
         Ok(())

@@ -87,7 +87,7 @@ pub const FORWARD: KernelSpec = KernelSpec {
     file: "render/composite.wgsl",
     entry: "forward",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
@@ -107,7 +107,7 @@ pub const BACKWARD: KernelSpec = KernelSpec {
     file: "render/composite.wgsl",
     entry: "backward",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
@@ -280,7 +280,7 @@ impl Renderer {
         }
         let mut p = self.params(batch.n_rays, seed);
         p.write_weights = out.weights.is_some() as u32;
-        let params = enc.uniform(&p);
+        let params = enc.params(&p);
         let weights = out.weights.as_ref().unwrap_or(&self.no_weights);
         enc.dispatch_threads(
             &self.forward,
@@ -323,7 +323,7 @@ impl Renderer {
         check_len("d ray outputs", d_rays.len(), n)?;
         let mut p = self.params(batch.n_rays, 0);
         p.accumulate = accumulate as u32;
-        let params = enc.uniform(&p);
+        let params = enc.params(&p);
         enc.dispatch_threads(
             &self.backward,
             &[

@@ -35,24 +35,24 @@ const FILE: &str = "sampler/grid.wgsl";
 const QUERY: KernelSpec = KernelSpec {
     file: FILE,
     entry: "query_points",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
 const SCATTER_MAX: KernelSpec = KernelSpec {
     file: FILE,
     entry: "scatter_max",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
 };
 const EMA: KernelSpec =
-    KernelSpec { file: FILE, entry: "ema", bindings: &[Binding::Uniform, Binding::ReadWrite, Binding::ReadWrite] };
+    KernelSpec { file: FILE, entry: "ema", bindings: &[Binding::Params, Binding::ReadWrite, Binding::ReadWrite] };
 const REDUCE: KernelSpec = KernelSpec {
     file: FILE,
     entry: "reduce_sum",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite],
 };
 const THRESHOLD: KernelSpec = KernelSpec {
     file: FILE,
     entry: "threshold_bits",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite],
 };
 
 /// Workgroups of the first reduction pass (each sums a strided share); the second
@@ -187,7 +187,7 @@ impl OccupancyGrid {
         let cells = GpuBuffer::zeros(gpu, "grid query cells", count as usize)?;
         let kernel = gpu.kernel(&QUERY)?;
         let mut enc = gpu.encoder();
-        let params = enc.uniform(&QueryParams {
+        let params = enc.params(&QueryParams {
             geom: self.geom,
             count,
             seed,
@@ -221,7 +221,7 @@ impl OccupancyGrid {
         let threshold = self.config.density_threshold(self.layout.aabb);
         let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold };
         let mut enc = gpu.encoder();
-        let p_update = enc.uniform(&params);
+        let p_update = enc.params(&params);
         enc.dispatch_threads(
             &*gpu.kernel(&SCATTER_MAX)?,
             &[&p_update, &cells.buffer, &densities.buffer, &self.scratch.buffer],
@@ -230,9 +230,9 @@ impl OccupancyGrid {
         enc.dispatch_threads(&*gpu.kernel(&EMA)?, &[&p_update, &self.scratch.buffer, &self.density.buffer], n_cells);
         let reduce = gpu.kernel(&REDUCE)?;
         let groups = n_cells.div_ceil(REDUCE_WG).min(REDUCE_GROUPS);
-        let p_cells = enc.uniform(&CountParams { n: n_cells, ..params });
+        let p_cells = enc.params(&CountParams { n: n_cells, ..params });
         enc.dispatch(&reduce, &[&p_cells, &self.density.buffer, &self.partials.buffer], fold_groups(gpu, groups));
-        let p_partials = enc.uniform(&CountParams { n: groups, ..params });
+        let p_partials = enc.params(&CountParams { n: groups, ..params });
         enc.dispatch(&reduce, &[&p_partials, &self.partials.buffer, &self.sum.buffer], [1, 1, 1]);
         enc.dispatch_threads(
             &*gpu.kernel(&THRESHOLD)?,

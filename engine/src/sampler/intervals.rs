@@ -24,7 +24,7 @@ const SPEC: KernelSpec = KernelSpec {
     file: "sampler/intervals.wgsl",
     entry: "ray_intervals",
     bindings: &[
-        Binding::Uniform,
+        Binding::Params,
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
@@ -73,7 +73,7 @@ impl RayIntervals {
         assert!(n_rays <= self.max_rays && rays.len() >= n_rays as usize, "{n_rays} rays for {}", self.max_rays);
         let (nodes, prims, n_nodes) = grid.gpu_bvh();
         let kernel = gpu.kernel(&SPEC)?;
-        let params = enc.uniform(&Params { n_rays, n_nodes, max_intervals: self.max_intervals, _pad: 0 });
+        let params = enc.params(&Params { n_rays, n_nodes, max_intervals: self.max_intervals, _pad: 0 });
         enc.dispatch_threads(
             &kernel,
             &[&params, &rays.buffer, &nodes.buffer, &prims.buffer, &self.intervals.buffer, &self.counts.buffer],

@@ -36,7 +36,7 @@ use super::scan::ExclusiveScan;
 use super::{OccupancyGrid, SamplerConfig, SamplerError};
 
 const BINDINGS: &[Binding] = &[
-    Binding::Uniform,
+    Binding::Params,
     Binding::ReadOnly,  // rays
     Binding::ReadOnly,  // intervals
     Binding::ReadOnly,  // interval counts
@@ -167,7 +167,7 @@ impl Sampler {
                 )
             }
         };
-        let params = enc.uniform(&Params {
+        let params = enc.params(&Params {
             geom,
             n_rays,
             capacity: batch.capacity,

@@ -19,13 +19,13 @@ pub const SCAN_BLOCK: u32 = 1024;
 const SCAN_BLOCKS: KernelSpec = KernelSpec {
     file: "sampler/scan.wgsl",
     entry: "scan_blocks",
-    bindings: &[Binding::Uniform, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
 
 const ADD_OFFSETS: KernelSpec = KernelSpec {
     file: "sampler/scan.wgsl",
     entry: "add_block_offsets",
-    bindings: &[Binding::Uniform, Binding::ReadWrite, Binding::ReadOnly],
+    bindings: &[Binding::Params, Binding::ReadWrite, Binding::ReadOnly],
 };
 
 #[repr(C)]
@@ -100,7 +100,7 @@ impl ExclusiveScan {
         }
         let blocks = n.div_ceil(SCAN_BLOCK);
         let lv = &self.levels[level];
-        let params = enc.uniform(&Params { n, n_blocks: blocks, _pad: [0; 2] });
+        let params = enc.params(&Params { n, n_blocks: blocks, _pad: [0; 2] });
         let scan = gpu.kernel(&SCAN_BLOCKS)?;
         enc.dispatch(&scan, &[&params, input, output, &lv.sums.buffer], fold_groups(gpu, blocks));
         if blocks > 1 {

@@ -137,7 +137,7 @@ fn field_grid_layout_follows_instant_ngp() {
     assert_eq!(kinds, [true, true, false, false, false]);
     assert_eq!((small.in_dim, small.in_pad), (10, 12));
     let largest = GridLayout::new(&GridConfig { n_levels: MAX_LEVELS, hidden_width: MAX_WIDTH, ..cfg.clone() }).unwrap();
-    assert_eq!(largest.mlp_len, MAX_WEIGHT_FLOATS, "the kernels' uniform weight block fits the largest MLPs exactly");
+    assert_eq!(largest.mlp_len, 4 * 2880, "every matrix of the largest configuration, in whole vec4 units");
     assert!(GridLayout::new(&GridConfig { hidden_width: 30, ..cfg.clone() }).is_err());
     assert!(GridLayout::new(&GridConfig { features_per_level: 4, ..cfg.clone() }).is_err());
     assert!(GridLayout::new(&GridConfig { n_levels: 33, ..cfg }).is_err());

@@ -19,7 +19,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Binding, Encoder, GpuBuffer, Kernel, KernelSpec};
 
-use Binding::{ReadOnly as R, ReadWrite as RW, Uniform as U};
+use Binding::{ReadOnly as R, ReadWrite as RW, Params as U};
 
 const BINDINGS: &[Binding] = &[U, R, R, R, RW];
 pub(super) const FORWARD: KernelSpec = KernelSpec { file: "field/mlp_gemm.wgsl", entry: "forward", bindings: BINDINGS };
@@ -168,7 +168,7 @@ pub fn linear_forward(
         mask_streams: 1,
         ..Default::default()
     };
-    let u = enc.uniform(&p);
+    let u = enc.params(&p);
     enc.dispatch(&k.forward, &[&u, &x.buf.buffer, &params.buffer, &x.buf.buffer, &y.buf.buffer], groups(rows, p.n, 1));
 }
 
@@ -217,7 +217,7 @@ pub fn linear_grad_input(
         }
         None => gy.buf,
     };
-    let u = enc.uniform(&p);
+    let u = enc.params(&p);
     enc.dispatch(
         &k.grad_input,
         &[&u, &gy.buf.buffer, &params.buffer, &mask_buf.buffer, &gx.buf.buffer],
@@ -274,13 +274,13 @@ pub fn linear_weight_grad(
         splits,
         ..Default::default()
     };
-    let u = enc.uniform(&p);
+    let u = enc.params(&p);
     enc.dispatch(
         &k.weight_grad,
         &[&u, &gy.buf.buffer, &x.buf.buffer, &x.buf.buffer, &partial.buffer],
         groups(layer.n_out, n, splits),
     );
     let r = Params { c_off: layer.w_off, ..p };
-    let u = enc.uniform(&r);
+    let u = enc.params(&r);
     enc.dispatch_threads(&k.reduce, &[&u, &partial.buffer, &partial.buffer, &partial.buffer, &grads.buffer], layer.n_out * n);
 }

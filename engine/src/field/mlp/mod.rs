@@ -3,7 +3,7 @@
 //! head, a view-dependent colour branch, analytic normals and the exact backward pass
 //! including the second-order path through the normals.
 //!
-//! Owns `kernels/field/mlp_lib.wgsl` (shared uniform and helpers), `mlp_encode.wgsl`,
+//! Owns `kernels/field/mlp_lib.wgsl` (shared parameters and helpers), `mlp_encode.wgsl`,
 //! `mlp_heads.wgsl`, `mlp_heads_backward.wgsl` and, through [`gemm`], `mlp_gemm.wgsl`;
 //! the `f64` CPU reference is [`reference`](mod@reference).
 //!
@@ -212,7 +212,7 @@ const FLAG_IPE: u32 = 1;
 const FLAG_NORMALS: u32 = 2;
 const FLAG_COLOR: u32 = 4;
 
-use Binding::{ReadOnly as R, ReadWrite as RW, Uniform as U};
+use Binding::{ReadOnly as R, ReadWrite as RW, Params as U};
 
 const ENCODE_SAMPLES: KernelSpec =
     KernelSpec { file: "field/mlp_encode.wgsl", entry: "encode_samples", bindings: &[U, R, RW, RW] };
@@ -417,7 +417,7 @@ impl MlpField {
         let k = &self.kernels;
         let rows = n * streams;
         let flags = if color { FLAG_COLOR } else { 0 };
-        let u = enc.uniform(&self.uniform(n, start, streams, flags));
+        let u = enc.params(&self.uniform(n, start, streams, flags));
         let (spec, data) = match input {
             Input::Samples(s) => (&ENCODE_SAMPLES, &s.buffer),
             Input::Points(p) => (&ENCODE_POINTS, &p.buffer),
@@ -450,7 +450,7 @@ impl MlpField {
         let w = l.width;
         let cw = self.config.color_width;
         let flags = FLAG_COLOR | if streams == 4 { FLAG_NORMALS } else { 0 };
-        let u = enc.uniform(&self.uniform(n, start, streams, flags));
+        let u = enc.params(&self.uniform(n, start, streams, flags));
         enc.dispatch_threads(
             &*gpu.kernel(&HEADS_BACKWARD)?,
             &[
@@ -523,7 +523,7 @@ impl Field for MlpField {
         for (start, n) in self.chunks(count) {
             let mut enc = gpu.encoder();
             self.chunk_forward(gpu, &mut enc, Input::Points(points), start, n, 1, false)?;
-            let u = enc.uniform(&self.uniform(n, start, 1, 0));
+            let u = enc.params(&self.uniform(n, start, 1, 0));
             let wk = &self.work;
             enc.dispatch_threads(
                 &heads,
@@ -546,7 +546,7 @@ impl Field for MlpField {
             let mut enc = gpu.encoder();
             self.chunk_forward(gpu, &mut enc, Input::Samples(&batch.samples), start, n, streams, true)?;
             let flags = FLAG_COLOR | if normals { FLAG_NORMALS } else { 0 };
-            let u = enc.uniform(&self.uniform(n, start, streams, flags));
+            let u = enc.params(&self.uniform(n, start, streams, flags));
             let wk = &self.work;
             enc.dispatch_threads(
                 &heads,
