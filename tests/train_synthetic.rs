@@ -352,3 +352,32 @@ fn mlp_backend_raises_test_psnr_above_untrained() {
     // Measured on lavapipe: 15.0 -> 18.6 dB.
     assert!(after.mean_psnr > before.mean_psnr + 2.5, "{:.2} -> {:.2}", before.mean_psnr, after.mean_psnr);
 }
+
+/// The sample capacity follows what the batches want (`train.grow_capacity`): a run
+/// started with room for 8 samples per ray on the deep forward-facing `occlusion`
+/// scene cuts rays at first, then grows its buffers and cuts none; with the capacity
+/// fixed, rays stay cut.
+#[test]
+fn sample_capacity_grows_until_no_ray_is_cut() {
+    let run = |grow: bool| {
+        let mut config = tiny_config("occlusion", 12);
+        config.set("scene.views=3").unwrap();
+        config.set("train.rays_per_batch=256").unwrap();
+        config.set("train.max_samples=2048").unwrap();
+        config.train.grow_capacity = grow;
+        let scene = Scene::load(&config.scene.path, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+        let mut trainer = Trainer::new(test_gpu(false), scene, config).unwrap();
+        let initial = trainer.sample_capacity();
+        let stats: Vec<_> = (0..12).map(|_| trainer.step().unwrap()).collect();
+        (initial, trainer.sample_capacity(), stats)
+    };
+    let (initial, grown, stats) = run(true);
+    assert!(stats[0].rays_dropped > 0, "the first step must want more than 8 samples per ray ({:?})", stats[0]);
+    assert!(grown > initial && grown as u64 >= stats[0].samples as u64 + stats[0].samples_truncated as u64, "capacity {initial} -> {grown}");
+    for s in &stats[3..] {
+        assert_eq!((s.rays_dropped, s.samples_truncated), (0, 0), "step {} still cut rays at capacity {grown}", s.step);
+    }
+    let (initial_fixed, fixed, stats_fixed) = run(false);
+    assert_eq!(initial_fixed, fixed);
+    assert!(stats_fixed.iter().all(|s| s.rays_dropped > 0), "a fixed capacity keeps cutting rays");
+}

@@ -66,8 +66,14 @@ pub struct TrainConfig {
     pub batch: BatchKind,
     /// Training images a patch batch is drawn from per step (the paper: 1).
     pub images_per_step: u32,
-    /// Sample capacity of a step's batch (rays past it are truncated).
+    /// Sample capacity of a step's batch at the start of the run (rays past it are
+    /// cut: they render without their far samples and are dropped from the losses).
     pub max_samples: u32,
+    /// Let the capacity follow what the batches want: after a step whose rays wanted
+    /// more samples than the capacity, the batch buffers grow to 1.25x that count
+    /// (up to the device's storage binding limit), so rays are cut only until the
+    /// capacity has caught up. `false`: `max_samples` is a fixed cap.
+    pub grow_capacity: bool,
     /// Seed of pixel selection, jitter and the occupancy grid's random cells.
     pub seed: u64,
     /// Write a checkpoint every this many steps (0: only at the end).
@@ -90,6 +96,7 @@ impl Default for TrainConfig {
             batch: BatchKind::Patches,
             images_per_step: 1,
             max_samples: 1 << 18,
+            grow_capacity: true,
             seed: 0,
             checkpoint_every: 1000,
             level_anneal: None,

@@ -129,17 +129,20 @@ pub struct StepStats {
     /// Photometric rays the sample capacity cut, dropped from the losses
     /// ([`crate::loss::truncated`]); `loss_color` and `psnr` are over the others.
     pub rays_dropped: u32,
+    /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
+    /// raises it for the next step when rays were cut).
+    pub sample_capacity: u32,
 }
 
 impl StepStats {
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -157,7 +160,8 @@ impl StepStats {
             self.loss_tv,
             self.lambda_tv,
             self.rays_dropped,
-            self.occupied_fraction
+            self.occupied_fraction,
+            self.sample_capacity
         )
     }
 }
@@ -571,6 +575,10 @@ impl Trainer {
         let grad = self.grad_norm.read(&gpu)?;
         let counts = bufs.batch.count.read(&gpu)?;
         self.step += 1;
+        let sample_capacity = self.bufs.batch.capacity;
+        if self.config().train.grow_capacity {
+            self.grow_capacity(counts[1])?;
+        }
         if !grad.all_finite() {
             return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }
@@ -595,7 +603,32 @@ impl Trainer {
             loss_tv,
             lambda_tv,
             rays_dropped,
+            sample_capacity,
         })
+    }
+
+    /// Samples a step's batch holds before rays are cut.
+    pub fn sample_capacity(&self) -> u32 {
+        self.bufs.batch.capacity
+    }
+
+    /// Grows the batch buffers when a step's rays wanted `wanted` samples, more than the
+    /// capacity ([`TrainConfig::grow_capacity`]): to 1.25x `wanted`, rounded up to whole
+    /// 4096-sample blocks, at most what one storage binding of the device holds. The
+    /// capacity never shrinks (one reallocation per new peak, not one per step).
+    fn grow_capacity(&mut self, wanted: u32) -> Result<(), TrainError> {
+        let capacity = self.bufs.batch.capacity;
+        let limit = (self.gpu.limits().max_storage_buffer_binding_size / std::mem::size_of::<samples_gpu::GpuSample>() as u64)
+            .min(u32::MAX as u64) as u32;
+        if wanted <= capacity || capacity >= limit {
+            return Ok(());
+        }
+        let grown = (wanted as u64 * 5 / 4).next_multiple_of(4096).min(limit as u64) as u32;
+        let n_all = self.bufs.batch.n_rays;
+        self.bufs = BatchBuffers::new(&self.gpu, n_all, grown)?;
+        self.field_grads = FieldGrads::new(&self.gpu, grown)?;
+        log::info!("step {}: rays wanted {wanted} samples, above the capacity {capacity}; capacity now {grown}", self.step);
+        Ok(())
     }
 
     /// A checkpoint of the current state (reads the GPU).
