@@ -54,7 +54,8 @@ struct GridParams {
     chunk_start: u32,
     chunk_len: u32,
     normal_eps: f32,
-    _pad0: u32,
+    // Added to the density MLP's output before the activation (GridConfig::density_bias).
+    density_bias: f32,
     _pad1: u32,
     _pad2: u32,
     // Backward scratch: vec4 offset of each of the 11 per-sample regions.
@@ -227,7 +228,9 @@ fn density_h0(a1: ptr<function, Vec64>) -> f32 {
     return s;
 }
 
-fn density_act(h0: f32) -> f32 {
+// sigma = act(h0 + density_bias); the derivatives below are d/dh0 of the same.
+fn density_act(h0_raw: f32) -> f32 {
+    let h0 = h0_raw + P.density_bias;
     if (P.activation == ACT_SOFTPLUS) {
         return max(h0, 0.0) + log(1.0 + exp(-abs(h0)));
     }
@@ -235,14 +238,16 @@ fn density_act(h0: f32) -> f32 {
 }
 
 // d sigma / d h0 (trunc_exp: exp with the argument clamped to [-15, 15], Instant-NGP).
-fn density_act_d1(h0: f32) -> f32 {
+fn density_act_d1(h0_raw: f32) -> f32 {
+    let h0 = h0_raw + P.density_bias;
     if (P.activation == ACT_SOFTPLUS) {
         return 1.0 / (1.0 + exp(-h0));
     }
     return exp(clamp(h0, -15.0, 15.0));
 }
 
-fn density_act_d2(h0: f32) -> f32 {
+fn density_act_d2(h0_raw: f32) -> f32 {
+    let h0 = h0_raw + P.density_bias;
     if (P.activation == ACT_SOFTPLUS) {
         let s = 1.0 / (1.0 + exp(-h0));
         return s * (1.0 - s);

@@ -30,11 +30,12 @@
 //!
 //! # MLPs (tiny-cuda-nn "FullyFusedMLP" without biases; width `W`, default 64)
 //! ```text
-//! z1 = W1 e   a1 = relu(z1)   h = W2 a1 (16)   sigma = [inside] act(h0)
+//! z1 = W1 e   a1 = relu(z1)   h = W2 a1 (16)   sigma = [inside] act(h0 + density_bias)
 //! xc = [h, SH_4(d)] (32)   ac1 = relu(C1 xc)   ac2 = relu(C2 ac1)   o = C3 ac2   rgb = sigmoid(o)
 //! ```
 //! `act` is `trunc_exp` (forward `exp(min(h0, 80))`, derivative `exp(clamp(h0, -15, 15))`
-//! as Instant-NGP) or `softplus`. `SH_4` is the real spherical-harmonics basis of
+//! as Instant-NGP) or `softplus`; `density_bias` is a constant of the config (0 by
+//! default). `SH_4` is the real spherical-harmonics basis of
 //! degree 4 (16 terms, tiny-cuda-nn constants) of the unit view direction.
 //!
 //! # Analytic normals (no finite differences)
@@ -155,6 +156,11 @@ pub struct GridConfig {
     pub seed: u64,
     /// Normals are zero where `|grad_x sigma| <= normal_eps`.
     pub normal_eps: f32,
+    /// Added to the density MLP's output before the activation, so the untrained
+    /// field's density is about `act(density_bias)` everywhere (trunc_exp: 1 at 0, the
+    /// Instant-NGP start). Negative values start from nearly empty space, which only
+    /// the training rays fill in.
+    pub density_bias: f32,
     /// Most samples per backward chunk (bounds the scratch memory).
     pub backward_chunk: u32,
     /// Optimizer hints: learning-rate multipliers and the MLP's L2 weight decay.
@@ -176,6 +182,7 @@ impl Default for GridConfig {
             table_init_range: 1e-4,
             seed: 0,
             normal_eps: 1e-10,
+            density_bias: 0.0,
             backward_chunk: 1 << 16,
             table_lr_scale: 1.0,
             mlp_lr_scale: 1.0,
@@ -207,6 +214,9 @@ impl GridConfig {
         }
         if self.hidden_width == 0 || !self.hidden_width.is_multiple_of(4) || self.hidden_width > MAX_WIDTH {
             return err(format!("hidden_width = {} must be a multiple of 4 in 4..={MAX_WIDTH}", self.hidden_width));
+        }
+        if !self.density_bias.is_finite() || self.density_bias.abs() > 20.0 {
+            return err(format!("density_bias = {} must be finite and within [-20, 20]", self.density_bias));
         }
         if !(self.normal_eps >= 0.0 && self.table_init_range >= 0.0) {
             return err("normal_eps and table_init_range must be >= 0".into());
@@ -346,7 +356,8 @@ struct GridParams {
     chunk_start: u32,
     chunk_len: u32,
     normal_eps: f32,
-    _pad: [u32; 3],
+    density_bias: f32,
+    _pad: [u32; 2],
     scratch: [[u32; 4]; 3],
     levels: [GpuLevel; MAX_LEVELS as usize],
 }
@@ -572,6 +583,7 @@ impl GridField {
             aabb: [self.aabb[0].to_array().map(f64::from), self.aabb[1].to_array().map(f64::from)],
             active_levels: self.active_levels,
             normal_eps: self.config.normal_eps as f64,
+            density_bias: self.config.density_bias as f64,
             table: self.table.read(gpu)?.into_iter().map(f64::from).collect(),
             mlp: self.mlp.read(gpu)?.into_iter().map(f64::from).collect(),
         })
@@ -611,7 +623,8 @@ impl GridField {
             chunk_start,
             chunk_len,
             normal_eps: self.config.normal_eps,
-            _pad: [0; 3],
+            density_bias: self.config.density_bias,
+            _pad: [0; 2],
             scratch,
             levels,
         }

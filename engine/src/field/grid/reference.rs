@@ -18,6 +18,8 @@ pub struct GridModel {
     pub aabb: [[f64; 3]; 2],
     pub active_levels: u32,
     pub normal_eps: f64,
+    /// Added to the density MLP's output before the activation.
+    pub density_bias: f64,
     /// 2 features per entry, entry-major.
     pub table: Vec<f64>,
     /// GPU layout, padding included.
@@ -122,18 +124,21 @@ impl GridModel {
     }
 
     pub fn act(&self, h0: f64) -> f64 {
+        let h0 = h0 + self.density_bias;
         match self.activation {
             DensityActivation::TruncExp => h0.min(80.0).exp(),
             DensityActivation::Softplus => h0.max(0.0) + (-h0.abs()).exp().ln_1p(),
         }
     }
     pub fn act_d1(&self, h0: f64) -> f64 {
+        let h0 = h0 + self.density_bias;
         match self.activation {
             DensityActivation::TruncExp => h0.clamp(-15.0, 15.0).exp(),
             DensityActivation::Softplus => 1.0 / (1.0 + (-h0).exp()),
         }
     }
     pub fn act_d2(&self, h0: f64) -> f64 {
+        let h0 = h0 + self.density_bias;
         match self.activation {
             DensityActivation::TruncExp => h0.clamp(-15.0, 15.0).exp(),
             DensityActivation::Softplus => {
