@@ -18,7 +18,7 @@ for v in none depth normal both; do
     rm -rf "$out"
     # shellcheck disable=SC2086
     $bin train "$scene" --views 3 --config "$config" --iters "$steps" --no-eval --out "$out" ${flags[$v]} \
-        --set train.checkpoint_every=0 >"$out.log" 2>&1 || { echo "$v failed: see $out.log"; exit 1; }
+        --set train.checkpoint_every=0 --set reg.start_step=0 --set reg.warmup_steps=0 >"$out.log" 2>&1 || { echo "$v failed: see $out.log"; exit 1; }
 done
 python3 - "$($bin info "$scene" 2>/dev/null | grep -i adapter | head -1)" <<'PY'
 import csv, sys
