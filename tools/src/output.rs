@@ -9,6 +9,15 @@ use edgenerf::data::{ImageRgb, save_depth_exr, save_normal_exr};
 use edgenerf::train::RenderedView;
 use edgenerf::viz;
 
+/// Creates the output directory `dir` (given as `flag`) before any work, with a clear
+/// error when a file is in the way (found only after rendering before).
+pub fn ensure_dir(dir: &Path, flag: &str) -> anyhow::Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!("{flag} {} is a file; pass a directory (it is created when missing)", dir.display());
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {flag} {}", dir.display()))
+}
+
 /// Writes `<dir>/<name>_{rgb,depth,normal,opacity}.*`.
 pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;

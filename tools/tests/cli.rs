@@ -108,12 +108,99 @@ fn train_writes_its_run_directory_and_render_reads_it_back() {
     let log = std::fs::read_to_string(run.join("log.csv")).unwrap();
     assert_eq!(log.lines().count(), 1 + 6, "{log}");
 
+    // A second `train` into the finished run is refused and changes nothing ...
+    let before = std::fs::read(run.join("checkpoint.safetensors")).unwrap();
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--iters", "1", "--no-eval"]);
+    assert!(!o.status.success() && text(&o).contains("--overwrite"), "{}", text(&o));
+    assert_eq!(std::fs::read(run.join("checkpoint.safetensors")).unwrap(), before);
+    assert_eq!(std::fs::read_to_string(run.join("log.csv")).unwrap().lines().count(), 1 + 6);
+
+    // ... and `render` from another directory finds the scene (the config records it absolutely).
     let renders = out.path().join("renders");
-    let o = edgenerf(&["render", run.to_str().unwrap(), "--split", "test", "--out", renders.to_str().unwrap()]);
+    let elsewhere = tempfile::tempdir().unwrap();
+    let o = common::command()
+        .current_dir(elsewhere.path())
+        .args(["render", run.to_str().unwrap(), "--split", "test", "--out", renders.to_str().unwrap()])
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("test PSNR"), "{}", text(&o));
     let n = std::fs::read_dir(&renders).unwrap().filter(|e| e.as_ref().unwrap().path().to_string_lossy().ends_with("_rgb.png")).count();
     assert_eq!(n, 8, "one render per test view");
+
+    // --overwrite replaces the run: a fresh log, no old test renders.
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--overwrite", "--iters", "1", "--no-eval"]
+        .into_iter()
+        .chain(["--config", repo().join("tools/configs/demo.toml").to_str().unwrap(), "--set", "sampler.steps_per_diagonal=48"])
+        .collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(std::fs::read_to_string(run.join("log.csv")).unwrap().lines().count(), 1 + 1);
+    assert!(!run.join("test").exists(), "the old run's test renders are gone");
+}
+
+#[test]
+fn train_refuses_to_overwrite_or_mix_runs_and_checks_outputs_first() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let scene = scene.to_str().unwrap();
+    // A run directory (files stand in for a finished run): refused, byte for byte intact.
+    let run = out.path().join("run");
+    std::fs::create_dir_all(run.join("test")).unwrap();
+    for f in ["checkpoint.safetensors", "config.json", "log.csv", "test/metrics.json"] {
+        std::fs::write(run.join(f), format!("the old {f}")).unwrap();
+    }
+    let o = edgenerf(&["train", scene, "--out", run.to_str().unwrap(), "--iters", "1"]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("already holds a run") && t.contains("--resume") && t.contains("--overwrite"), "{t}");
+    for f in ["checkpoint.safetensors", "config.json", "log.csv", "test/metrics.json"] {
+        assert_eq!(std::fs::read_to_string(run.join(f)).unwrap(), format!("the old {f}"), "{f} changed");
+    }
+    // --resume keeps the run's config: flags that would change it are refused.
+    for extra in [&["--config", "x.toml"][..], &["--views", "3"], &["--set", "train.seed=2"], &["--backend", "mlp"], &["--tau-e", "100"], &["--overwrite"]] {
+        let mut args = vec!["train", scene, "--out", run.to_str().unwrap(), "--resume"];
+        args.extend_from_slice(extra);
+        let o = edgenerf(&args);
+        assert!(!o.status.success() && text(&o).contains("cannot be used with"), "{extra:?}: {}", text(&o));
+    }
+    let o = edgenerf(&["train", scene, "--out", out.path().join("empty").to_str().unwrap(), "--resume"]);
+    assert!(!o.status.success() && text(&o).contains("holds no checkpoint"), "{}", text(&o));
+    // Outputs that are files are refused before any work.
+    let file = out.path().join("a-file");
+    std::fs::write(&file, "keep me").unwrap();
+    for cmd in [&["train", scene, "--out", file.to_str().unwrap()][..], &["render", run.to_str().unwrap(), "--out", file.to_str().unwrap()]] {
+        let o = edgenerf(cmd);
+        assert!(!o.status.success() && text(&o).contains("is a file"), "{cmd:?}: {}", text(&o));
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+    // Impossible batch sizes (they trained and logged PSNR 100).
+    for set in ["train.rays_per_batch=0", "train.max_samples=0"] {
+        let o = edgenerf(&["train", scene, "--out", out.path().join("zero").to_str().unwrap(), "--set", set, "--no-eval"]);
+        assert!(!o.status.success() && text(&o).contains("must both be positive"), "{set}: {}", text(&o));
+    }
+    // Out-of-range edge options (--canny-sigma 1e9 hung allocating its kernel).
+    let o = edgenerf(&["edges", scene, "--canny-sigma", "1e9", "--out", out.path().join("edges").to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("canny.sigma"), "{}", text(&o));
+    let o = edgenerf(&["train", scene, "--tau-e", "300", "--views", "3", "--out", out.path().join("tau").to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("0..=255"), "{}", text(&o));
+}
+
+/// A scene path that is not UTF-8 cannot be recorded in config.json: a clear error
+/// (it panicked serializing the config).
+#[cfg(unix)]
+#[test]
+fn a_non_utf8_scene_path_is_a_clear_error() {
+    use std::os::unix::ffi::OsStrExt;
+    let out = tempfile::tempdir().unwrap();
+    let scene = out.path().join(std::ffi::OsStr::from_bytes(b"scene\xff"));
+    std::fs::create_dir(&scene).unwrap();
+    let o = common::command()
+        .arg("train")
+        .arg(&scene)
+        .args(["--out", out.path().join("run").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("not valid UTF-8") && !t.contains("panicked"), "{t}");
 }
 
 #[test]

@@ -129,9 +129,12 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
             "Fortran-order arrays are not supported; save np.ascontiguousarray(a) instead".into(),
         );
     }
-    let count: usize = shape.iter().product();
+    // A header can claim any shape: the byte count must not overflow (it wrapped and
+    // passed the size check before, then failed allocating with "capacity overflow").
     let body = &bytes[header_start + header_len..];
-    let expected = count * dtype.size();
+    let expected = shape.iter().try_fold(dtype.size(), |n, &d| n.checked_mul(d)).ok_or_else(|| {
+        format!("header claims shape {}, more bytes than memory can hold (corrupt file)", shape_string(&shape))
+    })?;
     if body.len() != expected {
         return Err(format!(
             "data section holds {} bytes but shape {} of {dtype:?} needs {expected} (truncated or corrupt file)",
@@ -410,6 +413,14 @@ mod tests {
         ))
         .unwrap();
         assert_eq!((a.shape.clone(), a.data.clone()), (vec![], vec![3.0]));
+    }
+
+    #[test]
+    fn a_header_claiming_a_huge_shape_is_an_error_not_an_overflow() {
+        // 4 * 2^62 * 4 bytes wraps to 0 in 64 bits: an empty body passed the size check.
+        let header = "{'descr': '<f4', 'fortran_order': False, 'shape': (4611686018427387904, 4), }";
+        let e = parse_npy(&hand_built(1, header, &[])).unwrap_err();
+        assert!(e.contains("more bytes than memory can hold"), "{e}");
     }
 
     #[test]

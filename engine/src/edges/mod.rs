@@ -87,6 +87,9 @@ impl Default for CannyParams {
     }
 }
 
+/// The largest Canny blur [`EdgeConfig::validate`] accepts, in pixels.
+pub const MAX_CANNY_SIGMA: f32 = 64.0;
+
 /// How a run gets its edge masks.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -126,12 +129,16 @@ impl EdgeConfig {
     /// `dir` when the source is external.
     pub fn validate(&self) -> Result<(), EdgeError> {
         let bad = |message: String| Err(EdgeError::Config { message });
-        if !self.tau_e.is_finite() {
+        // 255 would mark every pixel an edge and 0 (nearly) none: both are allowed, as
+        // the extremes of the paper's threshold, but nothing outside the grey levels.
+        if !(0.0..=255.0).contains(&self.tau_e) {
             return bad(format!("tau_e is {}; use a grey level in 0..=255 (the paper uses 125)", self.tau_e));
         }
         let c = &self.canny;
-        if !(c.sigma >= 0.0 && c.sigma.is_finite()) {
-            return bad(format!("canny.sigma is {}; use a blur in pixels >= 0 (default 2)", c.sigma));
+        // The blur kernel spans 6 sigma: past MAX_CANNY_SIGMA it is wider than any image
+        // we train on and its allocation grows without bound.
+        if !(0.0..=MAX_CANNY_SIGMA).contains(&c.sigma) {
+            return bad(format!("canny.sigma is {}; use a blur in pixels in 0..={MAX_CANNY_SIGMA} (default 2)", c.sigma));
         }
         if !(0.0 <= c.low && c.low <= c.high && c.high <= 1.0) {
             return bad(format!(

@@ -213,6 +213,14 @@ fn config_validation_and_serde() {
     assert!(bad.validate().unwrap_err().to_string().contains("low 0.3 / high 0.2"));
     let bad = EdgeConfig { tau_e: f32::NAN, ..Default::default() };
     assert!(bad.validate().is_err());
+    // Outside the grey levels, and a blur whose kernel would grow without bound (this
+    // hung `edgenerf edges --canny-sigma 1e9`).
+    for tau_e in [300.0, -1.0] {
+        assert!(EdgeConfig { tau_e, ..Default::default() }.validate().unwrap_err().to_string().contains("0..=255"));
+    }
+    let huge = EdgeConfig { canny: CannyParams { sigma: 1e9, ..Default::default() }, ..Default::default() };
+    assert!(huge.validate().unwrap_err().to_string().contains("canny.sigma is 1000000000"));
+    EdgeConfig { tau_e: 255.0, canny: CannyParams { sigma: MAX_CANNY_SIGMA, ..Default::default() }, ..Default::default() }.validate().unwrap();
     EdgeConfig::default().validate().unwrap();
 
     let cfg: EdgeConfig = serde_json::from_str(r#"{"source": "external", "dir": "maps", "polarity": "bright_edges", "canny": {"sigma": 2.0}}"#).unwrap();

@@ -256,7 +256,24 @@ impl RunConfig {
         Ok(())
     }
 
-    /// The config as pretty JSON (what `config.json` holds).
+    /// Paths the config records must be UTF-8: `config.json` and checkpoints hold them
+    /// as JSON text ([`RunConfig::to_json`] panics otherwise). The message says which.
+    pub fn check_paths(&self) -> Result<(), String> {
+        let paths = [("scene.path", Some(&self.scene.path)), ("edges.dir", self.edges.dir.as_ref())];
+        for (key, path) in paths {
+            if let Some(p) = path.filter(|p| p.to_str().is_none()) {
+                return Err(format!(
+                    "{key} = {} is not valid UTF-8; the run records it as text (config.json, the checkpoint): \
+                     rename it or reach it through a UTF-8 path (e.g. a symbolic link)",
+                    p.display()
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The config as pretty JSON (what `config.json` holds). Call
+    /// [`RunConfig::check_paths`] first on configs built from user input.
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("configs serialize")
     }

@@ -250,13 +250,13 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if !lpips.notes.is_empty() {
         eprintln!("note: {}", lpips.notes.join("; "));
     }
-    let mut trainer = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
-    let views = crate::cmd::render::split_views(&trainer.scene, &args.split)?;
     let out = args.out.clone().unwrap_or_else(|| {
         let dir = if args.run.is_dir() { args.run.clone() } else { args.run.parent().map(Path::to_path_buf).unwrap_or_default() };
         dir.join(if args.split == "test" { "eval".to_string() } else { format!("eval-{}", args.split) })
     });
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    crate::output::ensure_dir(&out, "--out")?;
+    let mut trainer = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
+    let views = crate::cmd::render::split_views(&trainer.scene, &args.split)?;
 
     let bar = ProgressBar::new(views.len() as u64);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} views [{elapsed_precise}] {msg}").unwrap());

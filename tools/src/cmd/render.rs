@@ -34,6 +34,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
+    crate::output::ensure_dir(&args.out, "--out")?;
     let mut trainer = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
     if let Some(b) = &args.backend {
         let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;

@@ -64,10 +64,19 @@ pub struct Args {
     /// applied after --config and the flags above).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
-    /// Continue from the run directory's checkpoint (its config is used; --iters may
-    /// extend the run).
-    #[arg(long)]
+    /// Continue from the run directory's checkpoint. Its config is used: only --iters
+    /// (to extend the run), --max-seconds and --no-eval may change; flags that would
+    /// change the run are refused.
+    #[arg(long, conflicts_with_all = [
+        "config", "overrides", "backend", "views", "no_depth_reg", "no_normal_reg", "reg_variant",
+        "lambda_depth", "lambda_normal", "regnerf_depth_tv", "anneal_sample_space", "edges",
+        "edge_polarity", "tau_e", "no_dilate", "canny_sigma", "canny_low", "canny_high", "overwrite",
+    ])]
     resume: bool,
+    /// Replace the run already in --out (its checkpoint, config.json, log.csv and test
+    /// renders are deleted first). Without it, `train` refuses a directory holding a run.
+    #[arg(long)]
+    overwrite: bool,
     /// Skip the final test-view evaluation and renders.
     #[arg(long)]
     no_eval: bool,
@@ -80,7 +89,8 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
         Some(path) => RunConfig::from_file_for(path, backend)?,
         None => RunConfig::defaults_for(backend.unwrap_or_default()),
     };
-    config.scene.path = args.input.scene.clone();
+    // Absolute, so that `render`/`eval` of the checkpoint work from any directory.
+    config.scene.path = std::path::absolute(&args.input.scene).with_context(|| format!("resolving {}", args.input.scene.display()))?;
     if args.input.views.is_some() {
         config.scene.views = args.input.views;
     }
@@ -116,6 +126,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
         config.set(o)?;
     }
     config.resolve();
+    config.check_paths().map_err(anyhow::Error::msg)?;
     Ok(config)
 }
 
@@ -141,8 +152,64 @@ fn edge_masks(args: &Args, config: &RunConfig, scene: &Scene) -> anyhow::Result<
     Ok(Some(masks))
 }
 
+/// What a run writes into its directory; any of them there means the directory holds a
+/// run (an empty directory, or one holding only other files such as a suite's
+/// `train.log`, is free).
+const RUN_FILES: [&str; 4] = ["checkpoint.safetensors", "config.json", "log.csv", "test"];
+
+/// Makes `--out` ready: refuses a file, refuses a directory holding a run unless
+/// `--resume` or `--overwrite` says what to do with it (before this check, a second
+/// `train` into a finished run replaced its checkpoint and appended to its log),
+/// deletes the old run's files with `--overwrite`.
+fn prepare_run_dir(args: &Args) -> anyhow::Result<()> {
+    if args.resume {
+        if !args.out.join("checkpoint.safetensors").is_file() {
+            bail!("--resume: {} holds no checkpoint.safetensors to continue from; train without --resume to start a run there", args.out.display());
+        }
+        return Ok(());
+    }
+    crate::output::ensure_dir(&args.out, "--out")?;
+    let present: Vec<&str> = RUN_FILES.into_iter().filter(|f| args.out.join(f).exists()).collect();
+    if !present.is_empty() {
+        if !args.overwrite {
+            bail!(
+                "{} already holds a run ({}); nothing was changed. Pass --resume to continue it, --overwrite to \
+                 replace it, or choose another --out",
+                args.out.display(),
+                present.join(", ")
+            );
+        }
+        for f in present {
+            let p = args.out.join(f);
+            let removed = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+            removed.with_context(|| format!("--overwrite: removing {}", p.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// With `--resume`, the scene on the command line must be the run's (its config records
+/// an absolute path; older runs a path relative to where they were trained, then the
+/// command line's is used).
+fn resumed_scene(args: &Args, recorded: &std::path::Path) -> anyhow::Result<PathBuf> {
+    let given = &args.input.scene;
+    let same = match (given.canonicalize(), recorded.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => !recorded.exists(),
+    };
+    if !same {
+        bail!(
+            "--resume: the run in {} was trained on {}, not {}; pass that scene (or train a new run without --resume)",
+            args.out.display(),
+            recorded.display(),
+            given.display()
+        );
+    }
+    Ok(std::path::absolute(given)?)
+}
+
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    prepare_run_dir(&args)?;
     let ckpt_path = args.out.join("checkpoint.safetensors");
     let gpu = Gpu::new(gpu_opts)?;
     let mut trainer = if args.resume {
@@ -150,6 +217,10 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         if let Some(iters) = args.iters {
             ckpt.config.train.iters = iters;
         }
+        if args.max_seconds.is_some() {
+            ckpt.config.train.max_seconds = args.max_seconds;
+        }
+        ckpt.config.scene.path = resumed_scene(&args, &ckpt.config.scene.path)?;
         let scene = load_scene(&ckpt.config)?;
         let masks = edge_masks(&args, &ckpt.config, &scene)?;
         Trainer::resume(gpu, scene, ckpt, masks)?

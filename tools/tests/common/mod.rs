@@ -4,13 +4,17 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// Runs the binary under test with `args` (XDG_RUNTIME_DIR set, as lavapipe wants).
+/// The binary under test, XDG_RUNTIME_DIR set (lavapipe wants it); add arguments,
+/// a working directory, ...
+pub fn command() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_edgenerf"));
+    c.env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    c
+}
+
+/// Runs the binary under test with `args`.
 pub fn edgenerf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_edgenerf"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("run edgenerf")
+    command().args(args).output().expect("run edgenerf")
 }
 
 /// The repository root.
