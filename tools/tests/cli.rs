@@ -184,6 +184,41 @@ fn train_refuses_to_overwrite_or_mix_runs_and_checks_outputs_first() {
     assert!(!o.status.success() && text(&o).contains("0..=255"), "{}", text(&o));
 }
 
+/// Ctrl-C during training saves a checkpoint at the step reached (it lost every step
+/// since the last periodic one), and `--resume` continues from it.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_saves_a_checkpoint_that_resume_continues() {
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    let scene = repo().join("synthetic-scenes/small/turntable");
+    let demo = repo().join("tools/configs/demo.toml");
+    let child = common::command()
+        .args(["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", demo.to_str().unwrap()])
+        .args(["--iters", "100000", "--set", "train.checkpoint_every=0", "--set", "sampler.steps_per_diagonal=48", "--no-eval"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let rows = || std::fs::read_to_string(run.join("log.csv")).map_or(0, |l| l.lines().count().saturating_sub(1));
+    let start = std::time::Instant::now();
+    while rows() < 2 {
+        assert!(start.elapsed().as_secs() < 600, "training never logged two steps");
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    assert!(std::process::Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
+    let o = child.wait_with_output().unwrap();
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("interrupted at step") && t.contains("--resume"), "{t}");
+    let steps = rows();
+    assert!(steps >= 2 && run.join("checkpoint.safetensors").is_file(), "{steps} steps logged\n{t}");
+
+    let iters = (steps + 1).to_string();
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--resume", "--iters", &iters, "--no-eval"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(rows(), steps + 1, "the resumed run starts at the interrupted step");
+}
+
 /// A scene path that is not UTF-8 cannot be recorded in config.json: a clear error
 /// (it panicked serializing the config).
 #[cfg(unix)]

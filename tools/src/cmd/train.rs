@@ -208,8 +208,41 @@ fn resumed_scene(args: &Args, recorded: &std::path::Path) -> anyhow::Result<Path
     Ok(std::path::absolute(given)?)
 }
 
+/// Ctrl-C while training: the first asks the loop to stop after the current step and
+/// save a checkpoint; a second, or one outside the loop (loading, evaluation), exits at
+/// once as without a handler.
+mod interrupt {
+    use std::sync::atomic::{AtomicU8, Ordering};
+
+    const IDLE: u8 = 0;
+    const TRAINING: u8 = 1;
+    const REQUESTED: u8 = 2;
+    static STATE: AtomicU8 = AtomicU8::new(IDLE);
+
+    /// Installs the handler (once per process; later calls keep the first).
+    pub fn install() {
+        let _ = ctrlc::set_handler(|| {
+            if STATE.compare_exchange(TRAINING, REQUESTED, Ordering::SeqCst, Ordering::SeqCst).is_err() {
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupt: stopping after this step and saving a checkpoint (Ctrl-C again to quit at once)");
+        });
+    }
+
+    /// Marks the training loop as running (`true`) or not.
+    pub fn set_training(on: bool) {
+        STATE.store(if on { TRAINING } else { IDLE }, Ordering::SeqCst);
+    }
+
+    /// Whether Ctrl-C asked the loop to stop.
+    pub fn requested() -> bool {
+        STATE.load(Ordering::SeqCst) == REQUESTED
+    }
+}
+
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     prepare_run_dir(&args)?;
+    interrupt::install();
     let ckpt_path = args.out.join("checkpoint.safetensors");
     let gpu = Gpu::new(gpu_opts)?;
     let mut trainer = if args.resume {
@@ -261,6 +294,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let start = Instant::now();
     let first_step = trainer.step_count();
     let mut psnr_ema = None::<f32>;
+    interrupt::set_training(true);
     while trainer.step_count() < iters {
         let stats = match trainer.step() {
             Ok(s) => s,
@@ -293,11 +327,25 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         if every > 0 && trainer.step_count() % every == 0 && trainer.step_count() < iters {
             trainer.checkpoint()?.save(&ckpt_path)?;
         }
+        if interrupt::requested() {
+            interrupt::set_training(false);
+            bar.abandon();
+            trainer.checkpoint()?.save(&ckpt_path)?;
+            bail!(
+                "interrupted at step {} of {iters}; checkpoint saved to {} (log.csv has every step). Continue with \
+                 `edgenerf train {} --out {} --resume`",
+                trainer.step_count(),
+                ckpt_path.display(),
+                args.input.scene.display(),
+                args.out.display()
+            );
+        }
         if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
             bar.println(format!("stopping at step {}: {elapsed:.0} s of training reached train.max_seconds", trainer.step_count()));
             break;
         }
     }
+    interrupt::set_training(false);
     bar.finish();
     trainer.checkpoint()?.save(&ckpt_path)?;
     let elapsed = start.elapsed().as_secs_f64();
