@@ -10,7 +10,9 @@
 //             (gradients flow through zbar and nbar), both divided by the patch count;
 //   official: the same L_z with zbar held constant (stop-gradient);
 //             L_n = sum_i e_i |n_i - nbar|^2 / (12 M), nbar held constant, no hinge
-//             (the authors' mean over the 4M pixels and 3 components).
+//             (the authors' mean over the 4M pixels and 3 components);
+//   plane target (either variant): L_z = sum_m max(E |z0 - z1 - z2 + z3| - tau1, 0) / M
+//             with E = e0 e1 e2 e3: the patch's second difference, zero for any plane.
 // Patches with S = 0 (all edge) contribute nothing. Gradients are ADDED to d_rays
 // (the photometric loss wrote them first): d depth = lambda_z dL_z/dz * z_scale,
 // d normal = lambda_n dL_n/dn.
@@ -22,7 +24,8 @@ struct Params {
     n_patches: u32,
     // 0: the paper's equations; 1: the authors' code.
     official: u32,
-    _pad0: u32,
+    // 1: L_z pulls toward any plane (second difference) instead of the patch mean.
+    depth_plane: u32,
     _pad1: u32,
     // Loss weights including the schedule's ramp; 0 switches a term off.
     lambda_depth: f32,
@@ -50,6 +53,7 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         return;
     }
     let official = params.official != 0u;
+    let plane = params.depth_plane != 0u;
     let inv_m = 1.0 / f32(params.n_patches);
     var e: array<f32, 4>;
     var z: array<f32, 4>;
@@ -85,10 +89,25 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     var g_n: array<vec3<f32>, 4>;
     var g_n_sum = vec3<f32>(0.0);
     for (var i = 0u; i < 4u; i++) {
+        g_z[i] = 0.0;
+    }
+    if (plane) {
+        let all_non_edge = e[0] * e[1] * e[2] * e[3];
+        let second_difference = z[0] - z[1] - z[2] + z[3];
+        let hz = all_non_edge * abs(second_difference) - params.tau_depth;
+        if (hz > 0.0) {
+            l_z = hz;
+            let sign = all_non_edge * sign_of(second_difference);
+            g_z[0] = sign;
+            g_z[1] = -sign;
+            g_z[2] = -sign;
+            g_z[3] = sign;
+        }
+    }
+    for (var i = 0u; i < 4u; i++) {
         let dz = z[i] - z_bar;
         let hz = e[i] * abs(dz) - params.tau_depth;
-        g_z[i] = 0.0;
-        if (hz > 0.0) {
+        if (!plane && hz > 0.0) {
             l_z += hz;
             g_z[i] = e[i] * sign_of(dz);
             g_z_sum += g_z[i];
@@ -110,8 +129,10 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         let r = 4u * m + i;
         var dz = g_z[i];
         var dn = g_n[i];
-        if (!official) {
+        if (!official && !plane) {
             dz -= e[i] / s * g_z_sum;
+        }
+        if (!official) {
             dn -= e[i] / s * g_n_sum;
         }
         var d = d_rays[r];

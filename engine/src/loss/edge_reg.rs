@@ -26,7 +26,15 @@
 //!           gradients flow through zbar and nbar
 //! official: L_z as above with zbar a constant (stop-gradient)
 //!           L_n = 1/(12 M) sum_m sum_i e_i |n_i - nbar|^2, nbar a constant, no hinge
+//! plane:    L_z = 1/M sum_m max(E_m |z_0 - z_1 - z_2 + z_3| - tau1, 0),  E_m = e_0 e_1 e_2 e_3
+//!           (`reg.depth_target = "plane"`, either variant)
 //! ```
+//! The paper's `L_z` pulls the four depths of a non-edge patch to their mean: a face
+//! at 45 degrees to the view has depths a pixel footprint apart, so every slanted
+//! patch pays and is pushed toward fronto-parallel. The plane target is the patch's
+//! second difference, zero for any depth that is affine in the pixel coordinates (a
+//! plane, to first order over a 2x2 patch), and only defined where all four pixels are
+//! non-edge (any three points lie on a plane).
 //! The paper writes both losses as sums over patches and pixels next to a photometric
 //! sum over rays; we divide every term by the batch size (`L_c` is the mean over rays
 //! and channels, these by the patch count), which keeps the paper's balance between
@@ -42,6 +50,7 @@
 //! paper:    dL_z/dz_j = (g_j - e_j/S sum_i g_i) / M
 //!           dL_n/dn_j = (G_j - e_j/S sum_i G_i) / M
 //! official: dL_z/dz_j = g_j / M,    dL_n/dn_j = G_j / (12 M)
+//! plane:    dL_z/dz_j = E_m sign(r_m) c_j / M where active, c = (1, -1, -1, 1)
 //! ```
 //! `d depth = lambda_z dL_z/dz * z_scale`, `d normal = lambda_n dL_n/dn`. The renderer's
 //! backward takes these through the weights (to density) and, for the normals, to the
@@ -71,6 +80,17 @@ pub enum RegVariant {
     Official,
 }
 
+/// What `L_z` pulls a non-edge patch's depths toward (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthTarget {
+    /// The patch mean (the paper and the authors' code): fronto-parallel patches.
+    #[default]
+    Mean,
+    /// Any plane: the 2x2 patch's second difference.
+    Plane,
+}
+
 /// The regularizers' settings in a run configuration (`[reg]`).
 ///
 /// Defaults are the paper's (section 4.1): `lambda2 = 0.1`, `tau1 = 1e-4`, `tau2 = 0`,
@@ -94,6 +114,8 @@ pub struct RegConfig {
     pub tau_depth: f32,
     /// `tau2` (paper variant only; the official `L_n` has no hinge).
     pub tau_normal: f32,
+    /// What `L_z` pulls toward: the patch mean (the paper) or any plane.
+    pub depth_target: DepthTarget,
     pub start_step: u64,
     pub warmup_steps: u64,
     /// `lambda1`, the weight of the photometric `L_c` (the paper: 1).
@@ -110,6 +132,7 @@ impl Default for RegConfig {
             lambda_normal: None,
             tau_depth: 1e-4,
             tau_normal: 0.0,
+            depth_target: DepthTarget::Mean,
             start_step: 0,
             warmup_steps: 0,
             lambda_color: 1.0,
@@ -148,6 +171,7 @@ impl RegConfig {
             lambda_normal: if self.normal { ramp * self.lambda_normal_for(dtu_scene) } else { 0.0 },
             tau_depth: self.tau_depth,
             tau_normal: self.tau_normal,
+            depth_target: self.depth_target,
         };
         (w.lambda_depth > 0.0 || w.lambda_normal > 0.0).then_some(w)
     }
@@ -177,6 +201,7 @@ pub struct EdgeRegWeights {
     /// `tau1`, `tau2`.
     pub tau_depth: f32,
     pub tau_normal: f32,
+    pub depth_target: DepthTarget,
 }
 
 #[repr(C)]
@@ -184,7 +209,8 @@ pub struct EdgeRegWeights {
 struct Params {
     n_patches: u32,
     official: u32,
-    _pad: [u32; 2],
+    depth_plane: u32,
+    _pad: u32,
     lambda_depth: f32,
     lambda_normal: f32,
     tau_depth: f32,
@@ -233,7 +259,8 @@ impl EdgeReg {
         let params = enc.params(&Params {
             n_patches,
             official: (w.variant == RegVariant::Official) as u32,
-            _pad: [0; 2],
+            depth_plane: (w.depth_target == DepthTarget::Plane) as u32,
+            _pad: 0,
             lambda_depth: w.lambda_depth,
             lambda_normal: w.lambda_normal,
             tau_depth: w.tau_depth,
@@ -261,7 +288,7 @@ impl EdgeReg {
 /// `f64` CPU reference of the losses and their gradients (tests; documentation of the
 /// kernel in plain Rust).
 pub mod reference {
-    use super::RegVariant;
+    use super::{DepthTarget, RegVariant};
 
     /// One ray of a patch as the losses see it.
     #[derive(Clone, Copy, Debug, Default)]
@@ -288,8 +315,14 @@ pub mod reference {
 
     /// `(L_z, L_n)` of `rays` (a multiple of 4) and per ray `(dL_z/d depth, dL_n/d normal)`.
     #[allow(clippy::type_complexity)]
-    pub fn losses(rays: &[PatchRay], variant: RegVariant, tau_depth: f64, tau_normal: f64) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
-        losses_given_means(rays, &patch_means(rays), variant, tau_depth, tau_normal)
+    pub fn losses(
+        rays: &[PatchRay],
+        variant: RegVariant,
+        target: DepthTarget,
+        tau_depth: f64,
+        tau_normal: f64,
+    ) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
+        losses_given_means(rays, &patch_means(rays), variant, target, tau_depth, tau_normal)
     }
 
     /// [`losses`] with the patch means given: with the means of other rays held fixed,
@@ -299,6 +332,7 @@ pub mod reference {
         rays: &[PatchRay],
         means: &[Option<(f64, [f64; 3])>],
         variant: RegVariant,
+        target: DepthTarget,
         tau_depth: f64,
         tau_normal: f64,
     ) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
@@ -314,9 +348,20 @@ pub mod reference {
             let z: Vec<f64> = patch.iter().map(|r| r.depth * r.z_scale).collect();
             let mut g = [0.0; 4];
             let mut gn = [[0.0; 3]; 4];
+            let plane = target == DepthTarget::Plane;
+            if plane {
+                let all_non_edge: f64 = patch.iter().map(|r| r.e).product();
+                let second_difference = z[0] - z[1] - z[2] + z[3];
+                let hz = all_non_edge * second_difference.abs() - tau_depth;
+                if hz > 0.0 {
+                    lz += hz;
+                    let sign = all_non_edge * second_difference.signum();
+                    g = [sign, -sign, -sign, sign];
+                }
+            }
             for (i, r) in patch.iter().enumerate() {
                 let hz = r.e * (z[i] - z_bar).abs() - tau_depth;
-                if hz > 0.0 {
+                if !plane && hz > 0.0 {
                     lz += hz;
                     g[i] = r.e * (z[i] - z_bar).signum();
                 }
@@ -333,8 +378,10 @@ pub mod reference {
             let gn_sum: Vec<f64> = (0..3).map(|c| gn.iter().map(|v| v[c]).sum()).collect();
             for (i, r) in patch.iter().enumerate() {
                 let (mut dz, mut dn) = (g[i], gn[i]);
-                if !official {
+                if !official && !plane {
                     dz -= r.e / s * g_sum;
+                }
+                if !official {
                     for c in 0..3 {
                         dn[c] -= r.e / s * gn_sum[c];
                     }

@@ -32,8 +32,8 @@ fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
     rays
 }
 
-fn weights(variant: RegVariant, tau_depth: f32) -> EdgeRegWeights {
-    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0 }
+fn weights(variant: RegVariant, depth_target: DepthTarget, tau_depth: f32) -> EdgeRegWeights {
+    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0, depth_target }
 }
 
 #[test]
@@ -41,8 +41,16 @@ fn edge_reg_kernel_matches_reference() {
     let gpu = test_gpu(false);
     let n_patches = 37usize;
     let rays = random_patch_rays(n_patches, 3);
-    for (variant, tau) in [(RegVariant::Paper, 1e-4f32), (RegVariant::Official, 1e-4), (RegVariant::Paper, 0.3)] {
-        let w = weights(variant, tau);
+    use DepthTarget::{Mean, Plane};
+    let cases = [
+        (RegVariant::Paper, Mean, 1e-4f32),
+        (RegVariant::Official, Mean, 1e-4),
+        (RegVariant::Paper, Mean, 0.3),
+        (RegVariant::Paper, Plane, 1e-4),
+        (RegVariant::Official, Plane, 0.3),
+    ];
+    for (variant, target, tau) in cases {
+        let w = weights(variant, target, tau);
         let reg = EdgeReg::new(&gpu, n_patches as u32).unwrap();
         reg.pixel.write(&gpu, &rays.iter().map(|r| [r.e as f32, r.z_scale as f32]).collect::<Vec<_>>());
         let outs: Vec<RayOutput> = rays
@@ -58,7 +66,7 @@ fn edge_reg_kernel_matches_reference() {
         reg.record(&mut enc, &rays_buf, &d, n_patches as u32, &w);
         enc.submit();
         let got = reg.losses(&gpu, n_patches as u32).unwrap();
-        let ((lz, ln), grads) = losses(&rays, variant, tau as f64, 0.0);
+        let ((lz, ln), grads) = losses(&rays, variant, target, tau as f64, 0.0);
         assert!((got.depth as f64 - lz).abs() <= 1e-5 * lz.abs().max(1e-3), "{variant:?} L_z {} vs {lz}", got.depth);
         assert!((got.normal as f64 - ln).abs() <= 1e-5 * ln.abs().max(1e-3), "{variant:?} L_n {} vs {ln}", got.normal);
         let d = d.read(&gpu).unwrap();
@@ -79,15 +87,16 @@ fn edge_reg_kernel_matches_reference() {
 #[test]
 fn edge_reg_reference_matches_finite_differences() {
     let rays = random_patch_rays(9, 11);
-    for variant in [RegVariant::Paper, RegVariant::Official] {
+    let cases = [RegVariant::Paper, RegVariant::Official].into_iter().flat_map(|v| [(v, DepthTarget::Mean), (v, DepthTarget::Plane)]);
+    for (variant, target) in cases {
         // The official variant's means are constants of the backward pass: hold them.
         let frozen = patch_means(&rays);
         let total = |rays: &[PatchRay]| {
             let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(rays) };
-            let ((lz, ln), _) = losses_given_means(rays, &means, variant, 1e-4, 0.0);
+            let ((lz, ln), _) = losses_given_means(rays, &means, variant, target, 1e-4, 0.0);
             lz + 2.0 * ln
         };
-        let (_, grads) = losses(&rays, variant, 1e-4, 0.0);
+        let (_, grads) = losses(&rays, variant, target, 1e-4, 0.0);
         let h = 1e-6;
         for i in 0..rays.len() {
             let mut p = rays.clone();
@@ -106,8 +115,8 @@ fn edge_reg_reference_matches_finite_differences() {
             }
         }
         // Stop-gradient changes the answer (the paper variant's mean terms matter).
-        if variant == RegVariant::Official {
-            let (_, paper) = losses(&rays, RegVariant::Paper, 1e-4, 0.0);
+        if variant == RegVariant::Official && target == DepthTarget::Mean {
+            let (_, paper) = losses(&rays, RegVariant::Paper, target, 1e-4, 0.0);
             assert!(grads.iter().zip(&paper).any(|(a, b)| (a.0 - b.0).abs() > 1e-3));
         }
     }
@@ -135,7 +144,7 @@ fn patch_samples(n_patches: usize, seed: u64) -> (Vec<SampleRange>, Vec<GpuSampl
     (ranges, samples)
 }
 
-fn end_to_end(variant: RegVariant) {
+fn end_to_end(variant: RegVariant, depth_target: DepthTarget) {
     let gpu = test_gpu(false);
     let cfg = small_config();
     let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
@@ -149,7 +158,7 @@ fn end_to_end(variant: RegVariant) {
     batch.samples.write(&gpu, &samples);
     batch.count.write(&gpu, &[capacity, capacity]);
     let pixel: Vec<[f32; 2]> = (0..n_rays).map(|i| [if i % 7 == 3 { 0.0 } else { 1.0 }, 0.9 + 0.01 * i as f32]).collect();
-    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0 };
+    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0, depth_target };
 
     // GPU: forward with normals, composite, losses, backward to the parameters.
     let out = FieldOutputs::new(&gpu, capacity).unwrap();
@@ -193,7 +202,7 @@ fn end_to_end(variant: RegVariant) {
     let loss_of = |m: &crate::field::grid::reference::GridModel| -> (f64, f64) {
         let rays = patch_rays_of(m);
         let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(&rays) };
-        losses_given_means(&rays, &means, variant, w.tau_depth as f64, w.tau_normal as f64).0
+        losses_given_means(&rays, &means, variant, depth_target, w.tau_depth as f64, w.tau_normal as f64).0
     };
     let (lz, ln) = loss_of(&model);
     assert!(lz > 1e-3 && ln > 1e-3, "the test scene must exercise both losses: {lz} {ln}");
@@ -229,12 +238,34 @@ fn end_to_end(variant: RegVariant) {
 
 #[test]
 fn edge_reg_end_to_end_paper_matches_finite_differences() {
-    end_to_end(RegVariant::Paper);
+    end_to_end(RegVariant::Paper, DepthTarget::Mean);
+}
+
+#[test]
+fn edge_reg_end_to_end_plane_matches_finite_differences() {
+    end_to_end(RegVariant::Paper, DepthTarget::Plane);
 }
 
 #[test]
 fn edge_reg_end_to_end_official_matches_finite_differences() {
-    end_to_end(RegVariant::Official);
+    end_to_end(RegVariant::Official, DepthTarget::Mean);
+}
+
+#[test]
+fn plane_target_is_zero_on_any_plane_and_mean_target_is_not() {
+    // Depths affine in the pixel coordinates (a slanted plane) over an all non-edge patch.
+    let rays: Vec<PatchRay> = (0..4)
+        .map(|i| PatchRay { e: 1.0, z_scale: 1.0, depth: 2.0 + 0.03 * (i % 2) as f64 - 0.05 * (i / 2) as f64, normal: [0.0; 3] })
+        .collect();
+    let ((plane, _), grads) = losses(&rays, RegVariant::Paper, DepthTarget::Plane, 1e-4, 0.0);
+    assert!(plane == 0.0 && grads.iter().all(|g| g.0 == 0.0), "plane: {plane}");
+    let ((mean, _), _) = losses(&rays, RegVariant::Paper, DepthTarget::Mean, 1e-4, 0.0);
+    assert!(mean > 0.05, "the paper's target pulls the plane fronto-parallel: {mean}");
+    // One edge pixel: three points always lie on a plane, so nothing to pull.
+    let mut edge = rays.clone();
+    edge[0].depth += 1.0;
+    edge[1].e = 0.0;
+    assert_eq!(losses(&edge, RegVariant::Paper, DepthTarget::Plane, 1e-4, 0.0).0.0, 0.0);
 }
 
 #[test]
