@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! rays (train/)      -> Sampler -> SampleBatch { ranges, samples, count }
-//! SampleBatch        -> Field   -> FieldOutputs { density, rgb, normal } per sample
+//! SampleBatch        -> Field   -> FieldOutputs { rgb_density, normal } per sample
 //! SampleBatch + FieldOutputs -> Renderer -> RayOutputs per ray
 //! d RayOutputs (loss/) -> Renderer backward -> FieldGrads per sample -> Field backward
 //! ```
@@ -89,11 +89,12 @@ impl SampleBatch {
     }
 }
 
-/// Per-sample field values: post-activation density, RGB and unit normal
-/// (`vec4` padded, `w` unused).
+/// Per-sample field values: the colour and the post-activation density packed as
+/// `[r, g, b, sigma]`, and the unit normal (`w` unused). Colour and density share one
+/// buffer so that the renderer's backward binds 10 storage buffers, the most some
+/// Vulkan implementations allow per stage (SwiftShader; 12 with them apart).
 pub struct FieldOutputs {
-    pub density: GpuBuffer<f32>,
-    pub rgb: GpuBuffer<[f32; 4]>,
+    pub rgb_density: GpuBuffer<[f32; 4]>,
     pub normal: GpuBuffer<[f32; 4]>,
 }
 
@@ -102,21 +103,33 @@ impl FieldOutputs {
     /// sized with their batch). `what` names the caller and role.
     pub fn assert_capacity(&self, capacity: u32, what: &str) {
         let cap = capacity as usize;
-        assert!(
-            self.density.len() >= cap && self.rgb.len() >= cap && self.normal.len() >= cap,
-            "{what}: buffers smaller than the batch capacity {capacity}"
-        );
+        assert!(self.rgb_density.len() >= cap && self.normal.len() >= cap, "{what}: buffers smaller than the batch capacity {capacity}");
     }
 
     pub fn new(gpu: &Gpu, capacity: u32) -> Result<Self, GpuError> {
         let n = capacity as usize;
-        Ok(Self {
-            density: GpuBuffer::zeros(gpu, "density", n)?,
-            rgb: GpuBuffer::zeros(gpu, "rgb", n)?,
-            normal: GpuBuffer::zeros(gpu, "normal", n)?,
-        })
+        Ok(Self { rgb_density: GpuBuffer::zeros(gpu, "rgb density", n)?, normal: GpuBuffer::zeros(gpu, "normal", n)? })
+    }
+
+    /// Writes `density`, `rgb` (`w` ignored) and `normal` from the host into the first
+    /// samples (tests and reference comparisons).
+    pub fn write(&self, gpu: &Gpu, density: &[f32], rgb: &[[f32; 4]], normal: &[[f32; 4]]) {
+        assert_eq!(density.len(), rgb.len(), "FieldOutputs::write: lengths differ");
+        let packed: Vec<[f32; 4]> = rgb.iter().zip(density).map(|(c, &d)| [c[0], c[1], c[2], d]).collect();
+        self.rgb_density.write(gpu, &packed);
+        self.normal.write(gpu, normal);
+    }
+
+    /// `(density, rgb with w = 0, normal)` on the host.
+    #[allow(clippy::type_complexity)]
+    pub fn read(&self, gpu: &Gpu) -> Result<(Vec<f32>, Vec<[f32; 4]>, Vec<[f32; 4]>), GpuError> {
+        let packed = self.rgb_density.read(gpu)?;
+        let density = packed.iter().map(|v| v[3]).collect();
+        let rgb = packed.iter().map(|v| [v[0], v[1], v[2], 0.0]).collect();
+        Ok((density, rgb, self.normal.read(gpu)?))
     }
 }
 
-/// Gradients of the loss with respect to [`FieldOutputs`], same layout.
+/// Gradients of the loss with respect to [`FieldOutputs`], same layout (`d rgb` and
+/// `d sigma` packed as `[dr, dg, db, d sigma]`).
 pub type FieldGrads = FieldOutputs;

@@ -15,11 +15,11 @@
 
 @group(0) @binding(3) var<storage, read> samples: array<Sample>;
 @group(0) @binding(4) var<storage, read> count: array<u32>;
-@group(0) @binding(5) var<storage, read> d_density: array<f32>;
-@group(0) @binding(6) var<storage, read> d_rgb: array<vec4<f32>>;
-@group(0) @binding(7) var<storage, read> d_normal: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read_write> table_grad: array<AtomicF32>;
-@group(0) @binding(9) var<storage, read_write> scratch: array<vec4<f32>>;
+// (dL/drgb, dL/dsigma) packed as FieldOutputs packs (rgb, sigma).
+@group(0) @binding(5) var<storage, read> d_rgb_density: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> d_normal: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> table_grad: array<AtomicF32>;
+@group(0) @binding(8) var<storage, read_write> scratch: array<vec4<f32>>;
 
 const R_E: u32 = 0u;
 const R_D1: u32 = 1u;
@@ -75,7 +75,8 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let rgb = sigmoid3(o);
 
     // Colour MLP backward.
-    let dout = vec4<f32>(d_rgb[i].xyz * rgb * (vec3<f32>(1.0) - rgb), 0.0);
+    let d_out = d_rgb_density[i];
+    let dout = vec4<f32>(d_out.xyz * rgb * (vec3<f32>(1.0) - rgb), 0.0);
     var dc2: Vec64;
     for (var j4 = 0u; j4 < w4; j4++) {
         dc2[j4] = weights[P.c3 + j4] * dout.x + weights[P.c3 + w4 + j4] * dout.y
@@ -91,7 +92,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     // Density output: first order, then the normal path (second order).
     var dh0 = 0.0;
     if (up.inside) {
-        dh0 = d_density[i] * density_act_d1(h0);
+        dh0 = d_out.w * density_act_d1(h0);
     }
     var g: Vec64;
     var dg: Vec64;

@@ -1,6 +1,6 @@
 // Hash-grid field forward (owner: engine/src/field/grid/mod.rs): one thread per sample
 // of a SampleBatch, dispatched over its capacity, returning past count[0]. Writes the
-// post-activation density, the sigmoid colour and, with FLAG_NORMALS, the unit normal
+// sigmoid colour and the post-activation density packed as (r, g, b, sigma) and, with FLAG_NORMALS, the unit normal
 // n = -grad_x sigma / |grad_x sigma| from the analytic gradient (zero when
 // |grad_x sigma| <= normal_eps or outside the AABB).
 
@@ -8,9 +8,8 @@
 
 @group(0) @binding(3) var<storage, read> samples: array<Sample>;
 @group(0) @binding(4) var<storage, read> count: array<u32>;
-@group(0) @binding(5) var<storage, read_write> out_density: array<f32>;
-@group(0) @binding(6) var<storage, read_write> out_rgb: array<vec4<f32>>;
-@group(0) @binding(7) var<storage, read_write> out_normal: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> out_rgb_density: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> out_normal: array<vec4<f32>>;
 
 @compute @workgroup_size(WG_SIZE)
 fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -34,13 +33,12 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     if (up.inside) {
         sigma = density_act(h0);
     }
-    out_density[i] = sigma;
 
     sh_encode(smp.dir, &xc);
     var ac1: Vec64;
     var ac2: Vec64;
     let o = color_mlp(&xc, &ac1, &ac2);
-    out_rgb[i] = vec4<f32>(sigmoid3(o), 0.0);
+    out_rgb_density[i] = vec4<f32>(sigmoid3(o), sigma);
 
     if (normals) {
         var n = vec3<f32>(0.0);

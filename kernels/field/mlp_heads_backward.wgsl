@@ -8,11 +8,11 @@
 
 @group(0) @binding(1) var<storage, read> sig: array<f32>;
 @group(0) @binding(2) var<storage, read> rgb_raw: array<f32>;
-@group(0) @binding(3) var<storage, read> d_density: array<f32>;
-@group(0) @binding(4) var<storage, read> d_rgb: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> d_normal: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> g_sig: array<f32>;
-@group(0) @binding(7) var<storage, read_write> g_rgb: array<f32>;
+// (dL/drgb, dL/dsigma) packed as FieldOutputs packs (rgb, sigma).
+@group(0) @binding(3) var<storage, read> d_rgb_density: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> d_normal: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> g_sig: array<f32>;
+@group(0) @binding(6) var<storage, read_write> g_rgb: array<f32>;
 
 @compute @workgroup_size(WG_SIZE)
 fn heads_backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -25,14 +25,15 @@ fn heads_backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     let S = P.streams;
     let o = vec3<f32>(rgb_raw[3u * s], rgb_raw[3u * s + 1u], rgb_raw[3u * s + 2u]);
     let rgb = 1.0 / (1.0 + exp(-o));
-    let d_o = d_rgb[g].xyz * rgb * (vec3<f32>(1.0) - rgb);
+    let d_out = d_rgb_density[g];
+    let d_o = d_out.xyz * rgb * (vec3<f32>(1.0) - rgb);
     g_rgb[3u * s] = d_o.x;
     g_rgb[3u * s + 1u] = d_o.y;
     g_rgb[3u * s + 2u] = d_o.z;
 
     let raw = sig[s * S] + P.density_bias;
     let s1 = sigmoid(raw);
-    var d_raw = d_density[g] * s1;
+    var d_raw = d_out.w * s1;
     if ((P.flags & FLAG_NORMALS) != 0u) {
         let gr = vec3<f32>(sig[s * S + 1u], sig[s * S + 2u], sig[s * S + 3u]);
         let u = s1 * P.scale * gr;

@@ -55,18 +55,18 @@ struct RayAux {
 var<private> params: Params;
 @group(0) @binding(1) var<storage, read> ranges: array<SampleRange>;
 @group(0) @binding(2) var<storage, read> samples: array<Sample>;
-@group(0) @binding(3) var<storage, read> density: array<f32>;
-@group(0) @binding(4) var<storage, read> rgb: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> normal: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> rays: array<RayOutput>;
-@group(0) @binding(7) var<storage, read_write> aux: array<RayAux>;
+// The field's (r, g, b, sigma) per sample, and its gradients packed the same way (one
+// binding each: the backward's 10 storage buffers are the most SwiftShader allows).
+@group(0) @binding(3) var<storage, read> rgb_density: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> normal: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> rays: array<RayOutput>;
+@group(0) @binding(6) var<storage, read_write> aux: array<RayAux>;
 // Forward only.
-@group(0) @binding(8) var<storage, read_write> weights: array<f32>;
+@group(0) @binding(7) var<storage, read_write> weights: array<f32>;
 // Backward only.
-@group(0) @binding(8) var<storage, read> d_rays: array<RayOutput>;
-@group(0) @binding(9) var<storage, read_write> grad_density: array<f32>;
-@group(0) @binding(10) var<storage, read_write> grad_rgb: array<vec4<f32>>;
-@group(0) @binding(11) var<storage, read_write> grad_normal: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read> d_rays: array<RayOutput>;
+@group(0) @binding(8) var<storage, read_write> grad_rgb_density: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> grad_normal: array<vec4<f32>>;
 
 // PCG hash (Jarzynski & Olano 2020); mirrored by render::random_background.
 fn pcg_hash(v: u32) -> u32 {
@@ -124,10 +124,11 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         }
         let s = range.start + k;
         let smp = samples[s];
-        let tau = density[s] * smp.dt;
+        let field = rgb_density[s];
+        let tau = field.w * smp.dt;
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
-        acc_rgb += w * rgb[s].xyz;
+        acc_rgb += w * field.xyz;
         acc_opacity += w;
         acc_normal += w * normal[s].xyz;
         acc_depth += w * smp.t;
@@ -165,30 +166,28 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     for (var i = 0u; i < k_end; i++) {
         let s = range.start + i;
         let smp = samples[s];
-        let tau = density[s] * smp.dt;
+        let field = rgb_density[s];
+        let tau = field.w * smp.dt;
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
         T *= trans;
-        let u = dot(g.rgb, rgb[s].xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, normal[s].xyz);
+        let u = dot(g.rgb, field.xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, normal[s].xyz);
         prefix += w * u;
         let d_sigma = smp.dt * (T * u - (total - prefix));
-        var d_rgb = vec4<f32>(w * g.rgb, 0.0);
-        var d_normal = vec4<f32>(w * g.normal, 0.0);
+        let d_field = vec4<f32>(w * g.rgb, d_sigma);
+        let d_normal = vec4<f32>(w * g.normal, 0.0);
         if (acc) {
-            grad_density[s] += d_sigma;
-            grad_rgb[s] += d_rgb;
+            grad_rgb_density[s] += d_field;
             grad_normal[s] += d_normal;
         } else {
-            grad_density[s] = d_sigma;
-            grad_rgb[s] = d_rgb;
+            grad_rgb_density[s] = d_field;
             grad_normal[s] = d_normal;
         }
     }
     if (!acc) {
         for (var i = k_end; i < range.count; i++) {
             let s = range.start + i;
-            grad_density[s] = 0.0;
-            grad_rgb[s] = vec4<f32>(0.0);
+            grad_rgb_density[s] = vec4<f32>(0.0);
             grad_normal[s] = vec4<f32>(0.0);
         }
     }

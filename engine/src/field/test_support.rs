@@ -56,9 +56,7 @@ impl LossWeights {
     /// The weights as the per-sample output gradients of a batch of `capacity`.
     pub fn upload(&self, gpu: &Gpu, capacity: u32) -> FieldOutputs {
         let g = FieldOutputs::new(gpu, capacity).unwrap();
-        g.density.write(gpu, &self.a);
-        g.rgb.write(gpu, &self.b);
-        g.normal.write(gpu, &self.c);
+        g.write(gpu, &self.a, &self.b, &self.c);
         g
     }
 

@@ -407,6 +407,34 @@ mod tests {
         assert!(tables > 0, "the grid field's weight table is a uniform buffer; the check above saw none");
     }
 
+    /// Every entry point binds at most 10 storage buffers, SwiftShader's per-stage limit
+    /// (the lowest of the Vulkan implementations we test against; the renderer's
+    /// backward bound 12 before the field outputs were packed).
+    #[test]
+    fn every_entry_point_fits_swiftshaders_storage_buffer_limit() {
+        const SWIFTSHADER_STORAGE_BUFFERS: usize = 10;
+        let mut over = Vec::new();
+        for (name, _) in KERNEL_SOURCES {
+            let src = preprocess(name, true).unwrap();
+            let module = naga::front::wgsl::parse_str(&src).unwrap();
+            let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::SHADER_FLOAT32_ATOMIC)
+                .validate(&module)
+                .unwrap();
+            for (i, ep) in module.entry_points.iter().enumerate() {
+                let used = info.get_entry_point(i);
+                let storage = module
+                    .global_variables
+                    .iter()
+                    .filter(|(h, g)| matches!(g.space, naga::AddressSpace::Storage { .. }) && !used[*h].is_empty())
+                    .count();
+                if storage > SWIFTSHADER_STORAGE_BUFFERS {
+                    over.push(format!("{name}:{} binds {storage}", ep.name));
+                }
+            }
+        }
+        assert!(over.is_empty(), "over {SWIFTSHADER_STORAGE_BUFFERS} storage buffers: {over:?}");
+    }
+
     /// A layout above the adapter's per-stage limits is a clear error naming the
     /// kernel, not a wgpu validation panic (SwiftShader allows 10 storage buffers).
     #[test]

@@ -81,7 +81,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, Kernel, KernelSpec};
 use crate::samples::{FieldGrads, FieldOutputs, RayOutput, SampleBatch};
 
-/// Bind layout of `composite.wgsl::forward`: params, ranges, samples, density, rgb,
+/// Bind layout of `composite.wgsl::forward`: params, ranges, samples, rgb + density,
 /// normal, ray outputs, ray aux, per-sample weights.
 pub const FORWARD: KernelSpec = KernelSpec {
     file: "render/composite.wgsl",
@@ -92,17 +92,17 @@ pub const FORWARD: KernelSpec = KernelSpec {
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
-        Binding::ReadOnly,
         Binding::ReadWrite,
         Binding::ReadWrite,
         Binding::ReadWrite,
     ],
 };
 
-/// Bind layout of `composite.wgsl::backward`: params, ranges, samples, density, rgb,
-/// normal, ray outputs (read), ray aux (read), d ray outputs, d density, d rgb,
-/// d normal. Ray outputs and aux are declared read-write in WGSL (shared with the
-/// forward entry point) but only read here.
+/// Bind layout of `composite.wgsl::backward`: params, ranges, samples, rgb + density,
+/// normal, ray outputs (read), ray aux (read), d ray outputs, d rgb + d density,
+/// d normal: 10 storage buffers, the most SwiftShader allows per stage (a test checks
+/// every kernel against that floor). Ray outputs and aux are declared read-write in
+/// WGSL (shared with the forward entry point) but only read here.
 pub const BACKWARD: KernelSpec = KernelSpec {
     file: "render/composite.wgsl",
     entry: "backward",
@@ -112,11 +112,9 @@ pub const BACKWARD: KernelSpec = KernelSpec {
         Binding::ReadOnly,
         Binding::ReadOnly,
         Binding::ReadOnly,
-        Binding::ReadOnly,
         Binding::ReadWrite,
         Binding::ReadWrite,
         Binding::ReadOnly,
-        Binding::ReadWrite,
         Binding::ReadWrite,
         Binding::ReadWrite,
     ],
@@ -220,11 +218,10 @@ fn check_len(what: &'static str, len: usize, needed: usize) -> Result<(), Render
     if len < needed { Err(RenderError::BufferTooSmall { what, len, needed }) } else { Ok(()) }
 }
 
-fn check_field(what: [&'static str; 3], field: &FieldOutputs, capacity: u32) -> Result<(), RenderError> {
+fn check_field(what: [&'static str; 2], field: &FieldOutputs, capacity: u32) -> Result<(), RenderError> {
     let c = capacity as usize;
-    check_len(what[0], field.density.len(), c)?;
-    check_len(what[1], field.rgb.len(), c)?;
-    check_len(what[2], field.normal.len(), c)
+    check_len(what[0], field.rgb_density.len(), c)?;
+    check_len(what[1], field.normal.len(), c)
 }
 
 impl Renderer {
@@ -272,7 +269,7 @@ impl Renderer {
         out: &RenderOutputs,
         seed: u32,
     ) -> Result<(), RenderError> {
-        check_field(["density", "rgb", "normal"], field, batch.capacity)?;
+        check_field(["rgb density", "normal"], field, batch.capacity)?;
         check_len("ray outputs", out.rays.len(), batch.n_rays as usize)?;
         check_len("ray aux", out.aux.len(), batch.n_rays as usize)?;
         if let Some(w) = &out.weights {
@@ -288,8 +285,7 @@ impl Renderer {
                 &params,
                 &batch.ranges.buffer,
                 &batch.samples.buffer,
-                &field.density.buffer,
-                &field.rgb.buffer,
+                &field.rgb_density.buffer,
                 &field.normal.buffer,
                 &out.rays.buffer,
                 &out.aux.buffer,
@@ -315,8 +311,8 @@ impl Renderer {
         grads: &FieldGrads,
         accumulate: bool,
     ) -> Result<(), RenderError> {
-        check_field(["density", "rgb", "normal"], field, batch.capacity)?;
-        check_field(["d density", "d rgb", "d normal"], grads, batch.capacity)?;
+        check_field(["rgb density", "normal"], field, batch.capacity)?;
+        check_field(["d rgb density", "d normal"], grads, batch.capacity)?;
         let n = batch.n_rays as usize;
         check_len("ray outputs", out.rays.len(), n)?;
         check_len("ray aux", out.aux.len(), n)?;
@@ -330,14 +326,12 @@ impl Renderer {
                 &params,
                 &batch.ranges.buffer,
                 &batch.samples.buffer,
-                &field.density.buffer,
-                &field.rgb.buffer,
+                &field.rgb_density.buffer,
                 &field.normal.buffer,
                 &out.rays.buffer,
                 &out.aux.buffer,
                 &d_rays.buffer,
-                &grads.density.buffer,
-                &grads.rgb.buffer,
+                &grads.rgb_density.buffer,
                 &grads.normal.buffer,
             ],
             batch.n_rays,

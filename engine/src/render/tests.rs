@@ -129,11 +129,8 @@ fn upload(gpu: &Gpu, h: &HostBatch) -> Uploaded {
         n_rays: h.n_rays(),
         capacity: h.capacity(),
     };
-    let field = FieldOutputs {
-        density: GpuBuffer::from_slice(gpu, "density", &h.density).unwrap(),
-        rgb: GpuBuffer::from_slice(gpu, "rgb", &h.rgb).unwrap(),
-        normal: GpuBuffer::from_slice(gpu, "normal", &h.normal).unwrap(),
-    };
+    let field = FieldOutputs::new(gpu, h.density.len() as u32).unwrap();
+    field.write(gpu, &h.density, &h.rgb, &h.normal);
     Uploaded { batch, field }
 }
 
@@ -172,20 +169,19 @@ fn run_backward(
     init: &Grads,
     accumulate: bool,
 ) -> Grads {
-    let grads = FieldOutputs {
-        density: GpuBuffer::from_slice(gpu, "d density", &init.density).unwrap(),
-        rgb: GpuBuffer::from_slice(gpu, "d rgb", &init.rgb).unwrap(),
-        normal: GpuBuffer::from_slice(gpu, "d normal", &init.normal).unwrap(),
-    };
+    let grads = FieldOutputs::new(gpu, init.density.len() as u32).unwrap();
+    grads.write(gpu, &init.density, &init.rgb, &init.normal);
     let d = GpuBuffer::from_slice(gpu, "d rays", d_rays).unwrap();
     let mut enc = gpu.encoder();
     renderer.backward(&mut enc, &up.batch, &up.field, &fwd.out, &d, &grads, accumulate).unwrap();
     enc.submit();
-    Grads { density: grads.density.read(gpu).unwrap(), rgb: grads.rgb.read(gpu).unwrap(), normal: grads.normal.read(gpu).unwrap() }
+    let (density, rgb, normal) = grads.read(gpu).unwrap();
+    Grads { density, rgb, normal }
 }
 
 fn sentinel_grads(n: usize) -> Grads {
-    Grads { density: vec![123.0; n], rgb: vec![[123.0; 4]; n], normal: vec![[123.0; 4]; n] }
+    // rgb has no w of its own: FieldGrads packs d sigma there.
+    Grads { density: vec![123.0; n], rgb: vec![[123.0, 123.0, 123.0, 0.0]; n], normal: vec![[123.0; 4]; n] }
 }
 
 fn backgrounds(cfg: &RenderConfig, seed: u32, n: u32) -> Vec<[f32; 3]> {
@@ -479,7 +475,7 @@ fn check_backward_fd(cfg: RenderConfig, seed: u64) {
     }
     for (s, inside) in h.in_range().iter().enumerate() {
         if !inside {
-            assert_eq!((grads.density[s], grads.rgb[s], grads.normal[s]), (123.0, [123.0; 4], [123.0; 4]), "gap sample {s} written");
+            assert_eq!((grads.density[s], grads.rgb[s], grads.normal[s]), (123.0, [123.0, 123.0, 123.0, 0.0], [123.0; 4]), "gap sample {s} written");
         }
     }
     assert!(n_skipped <= 3, "{n_skipped} rays disagree on termination");
@@ -516,7 +512,7 @@ fn backward_accumulates_when_asked() {
     let fresh = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &sentinel_grads(n), false);
     let init = Grads {
         density: (0..n).map(|_| rng.range(-1.0, 1.0)).collect(),
-        rgb: (0..n).map(|_| [rng.range(-1.0, 1.0); 4]).collect(),
+        rgb: (0..n).map(|_| [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0]).collect(),
         normal: (0..n).map(|_| [rng.range(-1.0, 1.0); 4]).collect(),
     };
     let acc = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &init, true);

@@ -400,12 +400,12 @@ use Binding::{Params as P, ReadOnly as R, ReadWrite as RW, Uniform as U};
 const DENSITY: KernelSpec =
     KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[P, R, U, R, RW] };
 const FORWARD: KernelSpec =
-    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[P, R, U, R, R, RW, RW, RW] };
+    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[P, R, U, R, R, RW, RW] };
 const BACKWARD: KernelSpec = KernelSpec {
     file: "field/grid_backward.wgsl",
     entry: "backward",
-    // params, table, weights, samples, count, d_density, d_rgb, d_normal, table_grad, scratch
-    bindings: &[P, R, U, R, R, R, R, R, RW, RW],
+    // params, table, weights, samples, count, d_rgb_density, d_normal, table_grad, scratch
+    bindings: &[P, R, U, R, R, R, R, RW, RW],
 };
 const OUTER: KernelSpec = KernelSpec { file: "field/grid_outer.wgsl", entry: "outer", bindings: &[P, R, R, RW] };
 const FINALIZE: KernelSpec =
@@ -690,8 +690,7 @@ impl Field for GridField {
                 &self.mlp_uniform,
                 &batch.samples.buffer,
                 &batch.count.buffer,
-                &out.density.buffer,
-                &out.rgb.buffer,
+                &out.rgb_density.buffer,
                 &out.normal.buffer,
             ],
             cap,
@@ -745,8 +744,7 @@ impl Field for GridField {
                     &self.mlp_uniform,
                     &batch.samples.buffer,
                     &batch.count.buffer,
-                    &grads.density.buffer,
-                    &grads.rgb.buffer,
+                    &grads.rgb_density.buffer,
                     &grads.normal.buffer,
                     &self.table_grad.buffer,
                     &scratch.buffer.buffer,

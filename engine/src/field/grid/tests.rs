@@ -220,7 +220,7 @@ fn field_grid_gpu_encoding_and_mlps_match_reference() {
     // Zero output gradients: the backward still writes its per-sample forward values.
     let zero = FieldOutputs::new(&s.gpu, 128).unwrap();
     s.field.backward(&s.gpu, &s.batch, &zero, true).unwrap();
-    let (density, rgb) = (out.density.read(&s.gpu).unwrap(), out.rgb.read(&s.gpu).unwrap());
+    let (density, rgb, _) = out.read(&s.gpu).unwrap();
     let e_rows = scratch_rows(&s, region::E);
     let a1_rows = scratch_rows(&s, region::A1);
     let xc_rows = scratch_rows(&s, region::XC);
@@ -463,7 +463,7 @@ fn field_grid_density_queries_match_forward_and_softplus() {
         let pbuf = GpuBuffer::from_slice(&s.gpu, "points", &points).unwrap();
         let dbuf = GpuBuffer::<f32>::zeros(&s.gpu, "densities", n).unwrap();
         s.field.density(&s.gpu, &pbuf, n as u32, &dbuf).unwrap();
-        let (q, f) = (dbuf.read(&s.gpu).unwrap(), out.density.read(&s.gpu).unwrap());
+        let (q, f) = (dbuf.read(&s.gpu).unwrap(), out.read(&s.gpu).unwrap().0);
         let m = s.field.reference(&s.gpu).unwrap();
         for i in 0..n {
             assert_eq!(q[i], f[i], "{act:?}: query vs forward density at {i}");

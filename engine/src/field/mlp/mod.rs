@@ -219,11 +219,13 @@ const ENCODE_SAMPLES: KernelSpec =
 const ENCODE_POINTS: KernelSpec =
     KernelSpec { file: "field/mlp_encode.wgsl", entry: "encode_points", bindings: &[U, R, RW, RW] };
 const HEADS: KernelSpec =
-    KernelSpec { file: "field/mlp_heads.wgsl", entry: "heads_forward", bindings: &[U, R, R, RW, RW, RW] };
+    KernelSpec { file: "field/mlp_heads.wgsl", entry: "heads_forward", bindings: &[U, R, R, RW, RW] };
+const HEADS_DENSITY: KernelSpec =
+    KernelSpec { file: "field/mlp_heads.wgsl", entry: "heads_density", bindings: &[U, R, R, RW] };
 const HEADS_BACKWARD: KernelSpec = KernelSpec {
     file: "field/mlp_heads_backward.wgsl",
     entry: "heads_backward",
-    bindings: &[U, R, R, R, R, R, RW, RW],
+    bindings: &[U, R, R, R, R, RW, RW],
 };
 
 /// Activation and gradient buffers of one chunk (`chunk` samples, up to 4 streams).
@@ -244,7 +246,6 @@ struct Work {
     g_bott: GpuBuffer<f32>,
     g: [GpuBuffer<f32>; 2],
     partial: GpuBuffer<f32>,
-    dummy: [GpuBuffer<[f32; 4]>; 2],
 }
 
 /// What a chunk's forward pass reads.
@@ -324,7 +325,6 @@ impl MlpField {
             g_bott: z("mlp d bottleneck", n * w)?,
             g: [z("mlp d h (a)", rows * w)?, z("mlp d h (b)", rows * w)?],
             partial: z("mlp weight-gradient partials", partial)?,
-            dummy: [GpuBuffer::zeros(gpu, "mlp dummy", 1)?, GpuBuffer::zeros(gpu, "mlp dummy", 1)?],
         })
     }
 
@@ -457,8 +457,7 @@ impl MlpField {
                 &u,
                 &wk.sig.buffer,
                 &wk.rgb.buffer,
-                &grads.density.buffer,
-                &grads.rgb.buffer,
+                &grads.rgb_density.buffer,
                 &grads.normal.buffer,
                 &wk.g_sig.buffer,
                 &wk.g_rgb.buffer,
@@ -519,7 +518,7 @@ impl Field for MlpField {
     -> Result<(), GpuError> {
         assert!(points.len() >= count as usize && out.len() >= count as usize, "density: buffers shorter than count");
         self.cached.set(None);
-        let heads = gpu.kernel(&HEADS)?;
+        let heads = gpu.kernel(&HEADS_DENSITY)?;
         for (start, n) in self.chunks(count) {
             let mut enc = gpu.encoder();
             self.chunk_forward(gpu, &mut enc, Input::Points(points), start, n, 1, false)?;
@@ -527,7 +526,7 @@ impl Field for MlpField {
             let wk = &self.work;
             enc.dispatch_threads(
                 &heads,
-                &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.buffer, &wk.dummy[0].buffer, &wk.dummy[1].buffer],
+                &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.buffer],
                 n,
             );
             enc.submit();
@@ -550,7 +549,7 @@ impl Field for MlpField {
             let wk = &self.work;
             enc.dispatch_threads(
                 &heads,
-                &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.density.buffer, &out.rgb.buffer, &out.normal.buffer],
+                &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.rgb_density.buffer, &out.normal.buffer],
                 n,
             );
             enc.submit();

@@ -198,7 +198,7 @@ fn forward_matches_reference(encoding: PositionEncoding) {
     let m = s.field.reference(&s.gpu).unwrap();
     let out = FieldOutputs::new(&s.gpu, cap).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
-    let (d, rgb, nrm) = (out.density.read(&s.gpu).unwrap(), out.rgb.read(&s.gpu).unwrap(), out.normal.read(&s.gpu).unwrap());
+    let (d, rgb, nrm) = out.read(&s.gpu).unwrap();
     let mut gpu_v = Vec::new();
     let mut cpu_v = Vec::new();
     for (i, smp) in s.samples.iter().enumerate() {
@@ -212,7 +212,7 @@ fn forward_matches_reference(encoding: PositionEncoding) {
     // Without normals: the same density and colour, normals untouched.
     let out2 = FieldOutputs::new(&s.gpu, cap).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out2, false).unwrap();
-    assert_eq!(out2.density.read(&s.gpu).unwrap(), d);
+    assert_eq!(out2.read(&s.gpu).unwrap().0, d);
     assert!(out2.normal.read(&s.gpu).unwrap().iter().all(|v| *v == [0.0; 4]));
 }
 
@@ -267,7 +267,7 @@ fn field_mlp_band_annealing_masks_high_frequencies() {
     assert!(e[3 + 3..3 + 9].iter().all(|&v| v == 0.0) && e[3 + 9 + 3..].iter().all(|&v| v == 0.0));
     let out = FieldOutputs::new(&s.gpu, 64).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
-    let d = out.density.read(&s.gpu).unwrap();
+    let d = out.read(&s.gpu).unwrap().0;
     let want: Vec<f64> = s.samples.iter().map(|p| trace(&m, p).sigma).collect();
     let unmasked: Vec<f64> = s.samples.iter().map(|p| trace(&all, p).sigma).collect();
     assert_close("annealed density", &to_f64(&d[..50]), &want, 1e-5, 1e-4);
