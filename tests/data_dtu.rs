@@ -230,3 +230,14 @@ fn scan24_matches_reference_decomposition() {
         }
     }
 }
+
+/// lambda3 defaults by scene (0.001 on DTU): the trainer's config records the value in
+/// effect, so config.json and checkpoints say what ran (they said `null`).
+#[test]
+fn a_dtu_run_records_the_lambda3_it_uses() {
+    let Some(scene) = load_scan24(&LoadOptions { views: Some(3), ..Default::default() }) else { return };
+    let config = edgenerf::train::RunConfig::default();
+    assert_eq!(config.reg.lambda_normal, None);
+    let trainer = edgenerf::train::Trainer::new(edgenerf::gpu::test_gpu(false), scene, config).unwrap();
+    assert_eq!(trainer.config().reg.lambda_normal, Some(0.001));
+}

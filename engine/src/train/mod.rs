@@ -308,6 +308,9 @@ impl Trainer {
     /// order), e.g. read from a cache; `None`: computed here when needed.
     pub fn with_edge_masks(gpu: Gpu, scene: Scene, mut config: RunConfig, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         config.resolve();
+        // The scene decides lambda3's default (0.001 on DTU): record the value in effect,
+        // so that config.json and the checkpoint say what ran, not `null`.
+        config.reg.lambda_normal = Some(config.reg.lambda_normal_for(is_dtu(&scene)));
         config.optim.validate()?;
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
         config.reg.validate().map_err(config_error)?;

@@ -90,7 +90,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
         None => RunConfig::defaults_for(backend.unwrap_or_default()),
     };
     // Absolute, so that `render`/`eval` of the checkpoint work from any directory.
-    config.scene.path = std::path::absolute(&args.input.scene).with_context(|| format!("resolving {}", args.input.scene.display()))?;
+    config.scene.path = absolute_scene(&args.input.scene)?;
     if args.input.views.is_some() {
         config.scene.views = args.input.views;
     }
@@ -205,7 +205,16 @@ fn resumed_scene(args: &Args, recorded: &std::path::Path) -> anyhow::Result<Path
             given.display()
         );
     }
-    Ok(std::path::absolute(given)?)
+    absolute_scene(given)
+}
+
+/// The scene directory as an absolute path, `..` and links resolved where that gives a
+/// UTF-8 path (a UTF-8 link is how a user reaches a directory whose name is not).
+fn absolute_scene(path: &std::path::Path) -> anyhow::Result<PathBuf> {
+    match path.canonicalize() {
+        Ok(p) if p.to_str().is_some() => Ok(p),
+        _ => std::path::absolute(path).with_context(|| format!("resolving {}", path.display())),
+    }
 }
 
 /// Ctrl-C while training: the first asks the loop to stop after the current step and
