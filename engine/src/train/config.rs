@@ -185,9 +185,13 @@ impl RunConfig {
     /// file's `backend`, else `backend`, else the grid). `backend`, when given, wins
     /// over the file's.
     pub fn from_file_for(path: &Path, backend: Option<Backend>) -> Result<RunConfig, TrainError> {
-        let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
-        let is_toml = path.extension().is_some_and(|e| e == "toml");
         let bad = |message: String| TrainError::Config { source_name: path.display().to_string(), message };
+        let is_toml = match path.extension().and_then(|e| e.to_str()) {
+            Some("toml") => true,
+            Some("json") => false,
+            _ => return Err(bad("config files are TOML (.toml) or JSON (.json) only; name the file after its format".into())),
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
         let mut file: serde_json::Value = if is_toml {
             toml::from_str(&text).map_err(|e| bad(e.to_string()))?
         } else {
@@ -202,7 +206,7 @@ impl RunConfig {
         };
         let mut merged = serde_json::to_value(RunConfig::defaults_for(backend)).expect("configs serialize");
         merge_json(&mut merged, file);
-        serde_json::from_value(merged).map_err(|e| bad(e.to_string()))
+        from_value_with_path(merged).map_err(bad)
     }
 
     /// [`RunConfig::from_file_for`] with the file's own backend.
@@ -252,7 +256,7 @@ impl RunConfig {
             }
             node = next;
         }
-        *self = serde_json::from_value(root).map_err(|e| bad(e.to_string()))?;
+        *self = from_value_with_path(root).map_err(bad)?;
         Ok(())
     }
 
@@ -294,6 +298,15 @@ pub const FOLLOW_ITERS: u64 = 0;
 
 /// Overwrites `base` with every key of `over`, recursing into tables (a config file
 /// over defaults: keys the file does not name keep the default).
+/// A config from JSON, the error naming the key at fault (`train.iters: invalid type:
+/// string "many", expected u64`) rather than only the type.
+fn from_value_with_path(value: serde_json::Value) -> Result<RunConfig, String> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        if path == "." { e.into_inner().to_string() } else { format!("{path}: {}", e.into_inner()) }
+    })
+}
+
 fn merge_json(base: &mut serde_json::Value, over: serde_json::Value) {
     match (base, over) {
         (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
@@ -348,6 +361,23 @@ mod tests {
         assert_eq!(c.optim.adam, OptimConfig::regnerf(1).adam);
         std::fs::write(&path, "[train]\nbogus = 1\n").unwrap();
         assert!(RunConfig::from_file(&path).is_err(), "unknown keys are still errors after the merge");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn config_errors_name_the_key_and_the_format() {
+        let dir = std::env::temp_dir().join(format!("edgenerf-config-errors-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("c.toml");
+        std::fs::write(&path, "[train]\niters = \"many\"\n").unwrap();
+        let e = RunConfig::from_file(&path).unwrap_err().to_string();
+        assert!(e.contains("train.iters") && e.contains("invalid type"), "{e}");
+        let yaml = dir.join("c.yaml");
+        std::fs::write(&yaml, "train:\n  iters: 3\n").unwrap();
+        let e = RunConfig::from_file(&yaml).unwrap_err().to_string();
+        assert!(e.contains("TOML (.toml) or JSON (.json) only"), "{e}");
+        let e = RunConfig::default().set("reg.lambda_depth=\"x\"").unwrap_err().to_string();
+        assert!(e.contains("reg.lambda_depth"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
