@@ -296,8 +296,6 @@ impl RunConfig {
 /// `max_steps` of a log-linear schedule that follows `train.iters` ([`RunConfig::resolve`]).
 pub const FOLLOW_ITERS: u64 = 0;
 
-/// Overwrites `base` with every key of `over`, recursing into tables (a config file
-/// over defaults: keys the file does not name keep the default).
 /// A config from JSON, the error naming the key at fault (`train.iters: invalid type:
 /// string "many", expected u64`) rather than only the type.
 fn from_value_with_path(value: serde_json::Value) -> Result<RunConfig, String> {
@@ -307,6 +305,8 @@ fn from_value_with_path(value: serde_json::Value) -> Result<RunConfig, String> {
     })
 }
 
+/// Overwrites `base` with every key of `over`, recursing into tables (a config file
+/// over defaults: keys the file does not name keep the default).
 fn merge_json(base: &mut serde_json::Value, over: serde_json::Value) {
     match (base, over) {
         (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
@@ -346,9 +346,8 @@ mod tests {
 
     #[test]
     fn mlp_backend_defaults_to_regnerf_optimizer_following_iters() {
-        let dir = std::env::temp_dir().join(format!("edgenerf-config-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("c.toml");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.toml");
         std::fs::write(&path, "backend = \"mlp\"\n[train]\niters = 300\n[mlp]\nwidth = 64\n").unwrap();
         let mut c = RunConfig::from_file(&path).unwrap();
         assert_eq!((c.backend, c.mlp.width, c.mlp.depth), (Backend::Mlp, 64, 8));
@@ -361,24 +360,21 @@ mod tests {
         assert_eq!(c.optim.adam, OptimConfig::regnerf(1).adam);
         std::fs::write(&path, "[train]\nbogus = 1\n").unwrap();
         assert!(RunConfig::from_file(&path).is_err(), "unknown keys are still errors after the merge");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn config_errors_name_the_key_and_the_format() {
-        let dir = std::env::temp_dir().join(format!("edgenerf-config-errors-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("c.toml");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.toml");
         std::fs::write(&path, "[train]\niters = \"many\"\n").unwrap();
         let e = RunConfig::from_file(&path).unwrap_err().to_string();
         assert!(e.contains("train.iters") && e.contains("invalid type"), "{e}");
-        let yaml = dir.join("c.yaml");
+        let yaml = dir.path().join("c.yaml");
         std::fs::write(&yaml, "train:\n  iters: 3\n").unwrap();
         let e = RunConfig::from_file(&yaml).unwrap_err().to_string();
         assert!(e.contains("TOML (.toml) or JSON (.json) only"), "{e}");
         let e = RunConfig::default().set("reg.lambda_depth=\"x\"").unwrap_err().to_string();
         assert!(e.contains("reg.lambda_depth"), "{e}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
