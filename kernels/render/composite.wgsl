@@ -23,6 +23,17 @@
 //   total = <g.rgb, rgb - bg> + g.opacity opacity + g.depth depth + <g.normal, normal>
 // read from the forward outputs (the Instant-NGP / nerfacc trick: one pass, no
 // per-sample scratch). Samples at or past K get zero gradients.
+//
+// Sparse-view priors on the weights and densities (render/priors.rs has the math),
+// over the same K samples, with m_i = t_i the sample midpoints:
+//   distortion (mip-NeRF 360) D = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 dt_i
+//   occlusion  (FreeNeRF)     O = sum_{i: t_i < occlusion_end} sigma_i dt_i
+// The forward pass stores both per ray in aux. The backward adds
+//   params.distortion * D + params.occlusion * O
+// to the ray's loss: dD/dw_i = 2 (m_i W_<i - M_<i + M_>i - m_i W_>i) + 2/3 w_i dt_i
+// (W, M: prefix and suffix sums of w and w m, the suffixes from opacity and depth)
+// enters u_i, and sum_i w_i dD/dw_i = 2 D (D is homogeneous of degree 2 in w) enters
+// total; dO/dsigma_i = dt_i is added to the density gradient directly.
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
@@ -38,14 +49,25 @@ struct Params {
     t_threshold: f32,
     // Backward: add into the gradient buffers instead of overwriting them.
     accumulate: u32,
+    // Backward: the weights of the distortion and occlusion priors (0: off).
+    distortion: f32,
+    occlusion: f32,
+    // Samples with t below this are in the occlusion prior's range.
+    occlusion_end: f32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
 }
 
 // Per-ray side output of the forward pass, read by the backward pass and the losses.
 struct RayAux {
     background: vec3<f32>,
     n_contrib: u32,
+    // The ray's unweighted distortion D and occlusion O (see the header).
+    distortion: f32,
+    occlusion: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<storage, read> params_buffer: Params;
@@ -117,6 +139,10 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var acc_opacity = 0.0;
     var acc_normal = vec3<f32>(0.0);
     var acc_depth = 0.0;
+    // Distortion by prefix sums: sum_{i,j} w_i w_j |m_i - m_j| = 2 sum_i w_i (m_i W_<i - M_<i).
+    var dist_inter = 0.0;
+    var dist_intra = 0.0;
+    var occ = 0.0;
     var k = 0u;
     for (; k < range.count; k++) {
         if (T < params.t_threshold) {
@@ -129,8 +155,13 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
         acc_rgb += w * field.xyz;
-        acc_opacity += w;
         acc_normal += w * normal[s].xyz;
+        dist_inter += w * (smp.t * acc_opacity - acc_depth);
+        dist_intra += w * w * smp.dt;
+        if (smp.t < params.occlusion_end) {
+            occ += tau;
+        }
+        acc_opacity += w;
         acc_depth += w * smp.t;
         if (params.write_weights != 0u) {
             weights[s] = w;
@@ -143,7 +174,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         }
     }
     rays[r] = RayOutput(acc_rgb + (1.0 - acc_opacity) * bg, acc_opacity, acc_normal, acc_depth);
-    aux[r] = RayAux(bg, k);
+    aux[r] = RayAux(bg, k, 2.0 * dist_inter + dist_intra / 3.0, occ, 0u, 0u);
 }
 
 @compute @workgroup_size(WG_SIZE)
@@ -159,10 +190,15 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let g = d_rays[r];
     let bg = side.background;
     let k_end = min(side.n_contrib, range.count);
-    let total = dot(g.rgb, fwd.rgb - bg) + g.opacity * fwd.opacity + g.depth * fwd.depth + dot(g.normal, fwd.normal);
+    let c_dist = params.distortion;
+    let total = dot(g.rgb, fwd.rgb - bg) + g.opacity * fwd.opacity + g.depth * fwd.depth + dot(g.normal, fwd.normal)
+        + c_dist * 2.0 * side.distortion;
     let acc = params.accumulate != 0u;
     var T = 1.0;
     var prefix = 0.0;
+    // Prefix sums of w and w t before the current sample (distortion).
+    var w_before = 0.0;
+    var wt_before = 0.0;
     for (var i = 0u; i < k_end; i++) {
         let s = range.start + i;
         let smp = samples[s];
@@ -171,9 +207,19 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
         T *= trans;
-        let u = dot(g.rgb, field.xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, normal[s].xyz);
+        var u = dot(g.rgb, field.xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, normal[s].xyz);
+        if (c_dist != 0.0) {
+            let w_after = fwd.opacity - w_before - w;
+            let wt_after = fwd.depth - wt_before - w * smp.t;
+            u += c_dist * (2.0 * (smp.t * w_before - wt_before + wt_after - smp.t * w_after) + (2.0 / 3.0) * w * smp.dt);
+            w_before += w;
+            wt_before += w * smp.t;
+        }
         prefix += w * u;
-        let d_sigma = smp.dt * (T * u - (total - prefix));
+        var d_sigma = smp.dt * (T * u - (total - prefix));
+        if (smp.t < params.occlusion_end) {
+            d_sigma += params.occlusion * smp.dt;
+        }
         let d_field = vec4<f32>(w * g.rgb, d_sigma);
         let d_normal = vec4<f32>(w * g.normal, 0.0);
         if (acc) {

@@ -61,6 +61,11 @@
 //! the ray's terms. The background enters only through `u_i` (the `- bg` term), which
 //! is exactly the derivative of `(1 - opacity) bg`.
 //!
+//! **Priors.** The forward pass also stores per ray the distortion and occlusion
+//! measures of [`priors`] in [`RayAux`]; with [`Renderer::set_priors`] the backward
+//! adds their gradients (mip-NeRF 360's distortion loss, FreeNeRF's occlusion
+//! regularization) in the same pass.
+//!
 //! # Invariants
 //! * The ranges obey [`crate::samples`]'s invariants and lie inside the field buffers;
 //!   samples outside every range (gaps, past `count[0]`) are neither read nor written.
@@ -70,9 +75,12 @@
 //!   past `K`), or with `accumulate` adds to them: each sample belongs to one ray, so
 //!   no atomics are needed.
 
+pub mod priors;
 pub mod reference;
 #[cfg(test)]
 mod tests;
+
+pub use priors::{PriorConfig, RayPriors};
 
 use std::sync::Arc;
 
@@ -168,6 +176,11 @@ pub struct RayAux {
     pub background: [f32; 3],
     /// `K`: the number of leading samples that contributed (before early termination).
     pub n_contrib: u32,
+    /// The ray's distortion `D` and occlusion `O` ([`priors`], unweighted; `O` over
+    /// the renderer's occlusion range, 0 when none is set).
+    pub distortion: f32,
+    pub occlusion: f32,
+    pub _pad: [u32; 2],
 }
 
 /// Uniform of both entry points (mirror of `Params` in `composite.wgsl`).
@@ -181,7 +194,10 @@ struct Params {
     background: [f32; 4],
     t_threshold: f32,
     accumulate: u32,
-    _pad: [u32; 2],
+    distortion: f32,
+    occlusion: f32,
+    occlusion_end: f32,
+    _pad: [u32; 3],
 }
 
 /// The forward pass's per-ray (and optional per-sample) outputs.
@@ -208,6 +224,7 @@ impl RenderOutputs {
 /// Owner of the compositing kernels.
 pub struct Renderer {
     config: RenderConfig,
+    priors: RayPriors,
     forward: Arc<Kernel>,
     backward: Arc<Kernel>,
     /// Bound in place of the weights buffer when none is wanted (never written).
@@ -233,6 +250,7 @@ impl Renderer {
         }
         Ok(Self {
             config,
+            priors: RayPriors::default(),
             forward: gpu.kernel(&FORWARD)?,
             backward: gpu.kernel(&BACKWARD)?,
             no_weights: GpuBuffer::zeros(gpu, "no weights", 1)?,
@@ -243,7 +261,17 @@ impl Renderer {
         &self.config
     }
 
+    /// The sparse-view priors the backward pass adds (none by default).
+    pub fn set_priors(&mut self, priors: RayPriors) {
+        self.priors = priors;
+    }
+
+    pub fn priors(&self) -> &RayPriors {
+        &self.priors
+    }
+
     fn params(&self, n_rays: u32, seed: u32) -> Params {
+        let (distortion, occlusion) = self.priors.coefficients();
         let (bg_mode, rgb) = match self.config.background {
             Background::Black => (0, [0.0; 3]),
             Background::Color { rgb } => (1, rgb),
@@ -255,6 +283,9 @@ impl Renderer {
             seed,
             background: [rgb[0], rgb[1], rgb[2], 0.0],
             t_threshold: self.config.transmittance_threshold,
+            distortion,
+            occlusion,
+            occlusion_end: self.priors.occlusion_end,
             ..Default::default()
         }
     }

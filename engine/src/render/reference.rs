@@ -89,6 +89,23 @@ pub fn composite(samples: &[RefSample], background: [f64; 3], threshold: f64) ->
     out
 }
 
+/// The [`super::priors`] measures `(D, O)` of a composited ray, straight from their
+/// definitions (the double sum, not the kernel's prefix sums), over its `n_contrib`
+/// contributing samples; `O` counts the samples with `t < occlusion_end`.
+pub fn ray_priors(samples: &[RefSample], ray: &RefRay, occlusion_end: f64) -> (f64, f64) {
+    let live = &samples[..ray.n_contrib];
+    let w = &ray.weights;
+    let mut d = 0.0;
+    for (i, si) in live.iter().enumerate() {
+        for (j, sj) in live.iter().enumerate() {
+            d += w[i] * w[j] * (si.t - sj.t).abs();
+        }
+        d += w[i] * w[i] * si.dt / 3.0;
+    }
+    let o = live.iter().filter(|s| s.t < occlusion_end).map(|s| s.sigma * s.dt).sum();
+    (d, o)
+}
+
 /// The samples of ray `range` from the flat arrays the kernels read.
 pub fn gather(
     range: SampleRange,

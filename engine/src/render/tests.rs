@@ -388,14 +388,16 @@ fn background_shows_only_through_transparency() {
     }
 }
 
-/// `dL/dx` by central differences of the `f64` reference, for one ray.
-fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
+/// `dL/dx` by central differences of the `f64` reference, for one ray; the loss is
+/// `<g, output> + c_d D + c_o O` with the priors' `(c_d, c_o, occlusion_end)`.
+fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 3], i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
     let h = 1e-6 * x.abs().max(1.0);
     let eval = |v: f64| {
         let mut ray = ray.to_vec();
         set(&mut ray[i], v);
         let r = reference::composite(&ray, bg, th);
-        (r.dot(g), r.n_contrib)
+        let (d, o) = reference::ray_priors(&ray, &r, pri[2]);
+        (r.dot(g) + pri[0] * d + pri[1] * o, r.n_contrib)
     };
     let (lp, kp) = eval(x + h);
     let (lm, km) = eval(x - h);
@@ -404,11 +406,18 @@ fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, i: usize, set: &d
 }
 
 fn check_backward_fd(cfg: RenderConfig, seed: u64) {
+    check_backward_fd_with(cfg, RayPriors::default(), seed);
+}
+
+fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
     let gpu = test_gpu(false);
     let mut rng = Rng(seed);
     let h = random_batch(&mut rng, 300, 48);
     let up = upload(&gpu, &h);
-    let renderer = Renderer::new(&gpu, cfg).unwrap();
+    let mut renderer = Renderer::new(&gpu, cfg).unwrap();
+    renderer.set_priors(priors);
+    let (c_d, c_o) = priors.coefficients();
+    let pri = [c_d as f64, c_o as f64, priors.occlusion_end as f64];
     let fwd = run_forward(&gpu, &renderer, &up, 5);
     let d_rays: Vec<RayOutput> = (0..h.n_rays())
         .map(|_| RayOutput {
@@ -444,14 +453,23 @@ fn check_backward_fd(cfg: RenderConfig, seed: u64) {
                     + g.depth as f64 * s.t
             })
             .collect();
-        let total: f64 = u.iter().zip(&want.weights).map(|(u, w)| u * w).sum();
-        let scale = u.iter().zip(&want.weights).map(|(u, w)| (u * w).abs()).sum::<f64>() + total.abs();
+        // The size of the distortion's share of u_i as the kernel sums it: prefix and
+        // suffix sums of w t (suffixes from `depth`), so its rounding is relative to
+        // t_max opacity, not to the (smaller) differences m_i - m_j.
+        let (d, o) = reference::ray_priors(&ray, want, pri[2]);
+        let t_max = ray.last().map_or(0.0, |l| l.t + l.dt);
+        let u_dist = pri[0] * 4.0 * want.opacity * t_max;
+        let total: f64 = u.iter().zip(&want.weights).map(|(u, w)| u * w).sum::<f64>() + 2.0 * pri[0] * d;
+        let scale = u.iter().zip(&want.weights).map(|(u, w)| (u.abs() + u_dist) * w).sum::<f64>() + total.abs();
+        let (aux_d, aux_o) = (fwd.aux[r].distortion as f64, fwd.aux[r].occlusion as f64);
+        assert!((aux_d - d).abs() <= 1e-5 * d + 1e-7, "ray {r}: distortion gpu {aux_d} ref {d}");
+        assert!((aux_o - o).abs() <= 1e-5 * o + 1e-7, "ray {r}: occlusion gpu {aux_o} ref {o}");
         let start = h.ranges[r].start as usize;
         for (i, s) in ray.iter().enumerate() {
             let idx = start + i;
             let (gd, gc, gnn) = (grads.density[idx] as f64, grads.rgb[idx], grads.normal[idx]);
             assert_eq!((gc[3], gnn[3]), (0.0, 0.0), "ray {r} sample {i}: w components");
-            if let Some(want_s) = fd(&ray, bg, th, g, i, &|s, v| s.sigma = v, s.sigma) {
+            if let Some(want_s) = fd(&ray, bg, th, g, pri, i, &|s, v| s.sigma = v, s.sigma) {
                 let tol = 1e-4 * want_s.abs() + 2e-6 * s.dt * scale;
                 worst_sigma = worst_sigma.max((gd - want_s).abs() / (1e-4 * want_s.abs() + 1e-6 * s.dt * scale).max(1e-30));
                 assert!(
@@ -463,8 +481,8 @@ fn check_backward_fd(cfg: RenderConfig, seed: u64) {
                 n_sigma += 1;
             }
             for k in 0..3 {
-                let fc = fd(&ray, bg, th, g, i, &|s, v| s.rgb[k] = v, s.rgb[k]).unwrap();
-                let fnn = fd(&ray, bg, th, g, i, &|s, v| s.normal[k] = v, s.normal[k]).unwrap();
+                let fc = fd(&ray, bg, th, g, pri, i, &|s, v| s.rgb[k] = v, s.rgb[k]).unwrap();
+                let fnn = fd(&ray, bg, th, g, pri, i, &|s, v| s.normal[k] = v, s.normal[k]).unwrap();
                 assert!((gc[k] as f64 - fc).abs() <= 1e-5 * fc.abs() + 1e-7, "ray {r} sample {i}: dL/dc{k} {} vs {fc}", gc[k]);
                 assert!((gnn[k] as f64 - fnn).abs() <= 1e-5 * fnn.abs() + 1e-7, "ray {r} sample {i}: dL/dn{k} {} vs {fnn}", gnn[k]);
             }
@@ -491,6 +509,32 @@ fn backward_matches_finite_differences_black() {
 #[test]
 fn backward_matches_finite_differences_colour_background() {
     check_backward_fd(RenderConfig { background: Background::Color { rgb: [0.9, 0.1, 0.6] }, transmittance_threshold: 1e-4 }, 12);
+}
+
+#[test]
+fn backward_with_priors_matches_finite_differences() {
+    // Weights large enough that the priors dominate some samples' gradients; the
+    // occlusion range covers the first half of the rays' t (0.1 .. ~4).
+    let priors = RayPriors { lambda_distortion: 1.0, lambda_occlusion: 1.0, distortion_scale: 0.7, occlusion_scale: 0.3, occlusion_end: 1.2 };
+    check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4 }, priors, 14);
+    check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 }, priors, 15);
+}
+
+#[test]
+fn priors_off_leave_the_gradients_unchanged() {
+    // Zero lambdas with a live occlusion range: the backward is the plain one, bit for bit.
+    let gpu = test_gpu(false);
+    let h = random_batch(&mut Rng(16), 200, 32);
+    let up = upload(&gpu, &h);
+    let plain = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let mut off = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    off.set_priors(RayPriors { occlusion_end: 1.0, distortion_scale: 1.0, occlusion_scale: 1.0, ..Default::default() });
+    let d_rays: Vec<RayOutput> = (0..h.n_rays()).map(|r| RayOutput { rgb: [0.3, -0.2, 0.1], opacity: 0.05 * (r % 3) as f32, normal: [0.1; 3], depth: -0.2 }).collect();
+    let a = run_backward(&gpu, &plain, &up, &run_forward(&gpu, &plain, &up, 0), &d_rays, &sentinel_grads(h.density.len()), false);
+    let fwd_off = run_forward(&gpu, &off, &up, 0);
+    let b = run_backward(&gpu, &off, &up, &fwd_off, &d_rays, &sentinel_grads(h.density.len()), false);
+    assert_eq!((a.density, a.rgb, a.normal), (b.density, b.rgb, b.normal));
+    assert!(fwd_off.aux.iter().any(|x| x.occlusion > 0.0), "the forward still measures O");
 }
 
 #[test]
@@ -569,7 +613,7 @@ fn early_termination_is_the_same_forward_and_backward() {
         assert_eq!(zero, i >= 4, "sample {i}: {:?} {:?}", grads.density[i], grads.rgb[i]);
     }
     // Consistent with the truncated reference: dL/dsigma of sample 5 is 0 there too.
-    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, 5, &|s, v| s.sigma = v, 3.0).unwrap();
+    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, [0.0, 0.0, f64::MIN], 5, &|s, v| s.sigma = v, 3.0).unwrap();
     assert_eq!(fd5, 0.0);
 }
 

@@ -18,7 +18,13 @@
 //! are at most `n/4`, else `n/4` drawn uniformly from them. Draws and jitter use the
 //! PCG hash of `(seed, point, k)`: deterministic for a seed.
 //!
-//! Invariants: `host_bits` equals the GPU bitfield; the BVH and the occupied list
+//! **Seen cells.** [`OccupancyGrid::restrict_to_seen`] (Instant-NGP's
+//! `mark_untrained_density_grid`) takes a mask of the cells some training camera sees;
+//! every bitfield is ANDed with it from then on (on the host after the readback, and
+//! written back to the GPU), so space no training ray can reach is never marched: its
+//! density is whatever initialisation left there, fog or floaters in novel views.
+//!
+//! Invariants: `host_bits` equals the GPU bitfield and is a subset of the seen mask; the BVH and the occupied list
 //! were built from `host_bits`; before the first update every cell is occupied (so an
 //! untrained grid samples like the uniform marcher restricted to the AABB).
 
@@ -130,6 +136,8 @@ pub struct OccupancyGrid {
     bvh: BrickBvh,
     gpu_nodes: GpuBuffer<GpuBvhNode>,
     gpu_prims: GpuBuffer<GpuBvhNode>,
+    /// Cells a training camera sees, as a bitfield (`None`: all).
+    seen: Option<Vec<u32>>,
 }
 
 impl OccupancyGrid {
@@ -163,6 +171,7 @@ impl OccupancyGrid {
             bvh: BrickBvh::default(),
             gpu_nodes: GpuBuffer::zeros(gpu, "brick bvh nodes", 0)?,
             gpu_prims: GpuBuffer::zeros(gpu, "brick boxes", 0)?,
+            seen: None,
         };
         grid.rebuild(gpu, host_bits)?;
         Ok(grid)
@@ -240,7 +249,16 @@ impl OccupancyGrid {
             n_cells.div_ceil(32),
         );
         enc.submit();
-        let bits = self.bits.read(gpu)?;
+        let mut bits = self.bits.read(gpu)?;
+        if let Some(seen) = &self.seen {
+            let before = bits.clone();
+            for (b, m) in bits.iter_mut().zip(seen) {
+                *b &= m;
+            }
+            if bits != before {
+                self.bits.write(gpu, &bits);
+            }
+        }
         let mean_density = self.sum.read(gpu)?[0] / n_cells as f32;
         self.updated = true;
         let changed = bits != self.host_bits;
@@ -253,6 +271,43 @@ impl OccupancyGrid {
             occupied_bricks: self.bvh.bricks.len() as u32,
             changed,
         })
+    }
+
+    /// Restricts occupancy to the cells for which `seen(cell_min, cell_max)` holds (see
+    /// the module doc), from now on; returns how many cells that keeps. Call it before
+    /// training; a resumed run calls it again with the same cameras.
+    pub fn restrict_to_seen(&mut self, gpu: &Gpu, seen: impl Fn(Vec3, Vec3) -> bool + Sync) -> Result<u32, SamplerError> {
+        use rayon::prelude::*;
+        let res = self.geom.res as usize;
+        let [lo, hi] = self.layout.aabb;
+        let cell = (hi - lo) / res as f32;
+        let n_words = (res * res * res).div_ceil(32);
+        let mask: Vec<u32> = (0..n_words)
+            .into_par_iter()
+            .map(|w| {
+                let mut word = 0u32;
+                for bit in 0..32 {
+                    let c = w * 32 + bit;
+                    if c >= res * res * res {
+                        break;
+                    }
+                    let ijk = Vec3::new((c % res) as f32, ((c / res) % res) as f32, (c / (res * res)) as f32);
+                    let cmin = lo + ijk * cell;
+                    if seen(cmin, cmin + cell) {
+                        word |= 1 << bit;
+                    }
+                }
+                word
+            })
+            .collect();
+        let kept = mask.iter().map(|w| w.count_ones()).sum();
+        let bits: Vec<u32> = self.host_bits.iter().zip(&mask).map(|(b, m)| b & m).collect();
+        self.seen = Some(mask);
+        if bits != self.host_bits {
+            self.bits.write(gpu, &bits);
+            self.rebuild(gpu, bits)?;
+        }
+        Ok(kept)
     }
 
     /// The cell densities to save with a checkpoint: `None` before the first update
@@ -493,5 +548,34 @@ pub(crate) mod tests {
         let a = grid.query_points(&gpu, 500, 7).unwrap();
         let b = grid.query_points(&gpu, 500, 7).unwrap();
         assert_eq!(a.positions.read(&gpu).unwrap(), b.positions.read(&gpu).unwrap());
+    }
+
+    #[test]
+    fn restricted_grid_occupies_only_seen_cells_through_updates() {
+        let gpu = crate::gpu::test_gpu(false);
+        let cfg = SamplerConfig { resolution: 16, warmup_steps: 100, brick_size: 4, ..Default::default() };
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
+        // "Seen": the cells whose box reaches x < -0.25 (the first 6 of 16 columns).
+        let kept = grid.restrict_to_seen(&gpu, |lo, _| lo.x < -0.25).unwrap();
+        assert_eq!(kept, 6 * 16 * 16);
+        assert_eq!(grid.occupied_cells(), kept, "restricting an untrained grid keeps the seen cells");
+        let bits_of = |grid: &OccupancyGrid, gpu: &Gpu| (grid.occupancy_bits().to_vec(), grid.bits.read(gpu).unwrap());
+        for step in [0u32, 16, 32] {
+            // Dense everywhere: without the mask every cell would be occupied.
+            let q = grid.query_points(&gpu, step, 3 + step).unwrap();
+            let dens = GpuBuffer::from_slice(&gpu, "dens", &vec![50.0f32; q.count as usize]).unwrap();
+            let upd = grid.update(&gpu, &q.cells, &dens, q.count).unwrap();
+            assert_eq!(upd.occupied_cells, kept, "step {step}");
+            let (host, device) = bits_of(&grid, &gpu);
+            assert_eq!(host, device, "the GPU bitfield is masked too");
+            for c in 0..16 * 16 * 16u32 {
+                assert_eq!(grid.is_occupied(c % 16, (c / 16) % 16, c / 256), c % 16 < 6, "cell {c}");
+            }
+        }
+        // A checkpoint restore goes through the same mask.
+        let saved = grid.export_density(&gpu).unwrap().unwrap();
+        let upd = grid.restore_density(&gpu, &saved).unwrap();
+        assert_eq!(upd.occupied_cells, kept);
     }
 }

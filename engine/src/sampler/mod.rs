@@ -147,6 +147,9 @@ pub struct SamplerConfig {
     pub max_samples_per_ray: u32,
     /// Occupied intervals kept per ray.
     pub max_intervals: u32,
+    /// Only cells some training camera sees can be occupied (world-space scenes;
+    /// [`OccupancyGrid::restrict_to_seen`]): Instant-NGP's treatment of never-seen space.
+    pub seen_cells_only: bool,
 }
 
 impl Default for SamplerConfig {
@@ -163,6 +166,7 @@ impl Default for SamplerConfig {
             steps_per_diagonal: DEFAULT_STEPS_PER_DIAGONAL,
             max_samples_per_ray: 1024,
             max_intervals: 16,
+            seen_cells_only: true,
         }
     }
 }

@@ -14,7 +14,7 @@ use crate::edges::EdgeConfig;
 use crate::field::{GridConfig, MlpConfig};
 use crate::loss::RegConfig;
 use crate::optim::{LrSchedule, OptimConfig};
-use crate::render::RenderConfig;
+use crate::render::{PriorConfig, RenderConfig};
 use crate::sampler::SamplerConfig;
 
 use super::TrainError;
@@ -166,6 +166,9 @@ pub struct RunConfig {
     pub reg: RegConfig,
     /// RegNeRF's depth smoothness on random poses and sample-space annealing.
     pub regnerf: RegNerfConfig,
+    /// Sparse-view priors on each ray's weights: mip-NeRF 360's distortion loss and
+    /// FreeNeRF's occlusion regularization ([`crate::render::priors`]).
+    pub priors: PriorConfig,
 }
 
 impl RunConfig {

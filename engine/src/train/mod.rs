@@ -103,7 +103,7 @@ impl TrainError {
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct StepStats {
     pub step: u64,
-    /// Total loss `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv` with this step's weights.
+    /// Total loss `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ` with this step's weights.
     pub loss: f32,
     /// Photometric `L_c` (mean squared error) and the PSNR of the batch from it.
     pub loss_color: f32,
@@ -129,6 +129,10 @@ pub struct StepStats {
     /// Photometric rays the sample capacity cut, dropped from the losses
     /// ([`crate::loss::truncated`]); `loss_color` and `psnr` are over the others.
     pub rays_dropped: u32,
+    /// The sparse-view priors ([`crate::render::priors`]; 0 when off), unweighted: mip-NeRF
+    /// 360's distortion and FreeNeRF's occlusion term.
+    pub loss_distortion: f32,
+    pub loss_occlusion: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -136,13 +140,13 @@ pub struct StepStats {
 
 impl StepStats {
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -161,7 +165,9 @@ impl StepStats {
             self.lambda_tv,
             self.rays_dropped,
             self.occupied_fraction,
-            self.sample_capacity
+            self.sample_capacity,
+            self.loss_distortion,
+            self.loss_occlusion
         )
     }
 }
@@ -315,6 +321,7 @@ impl Trainer {
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
         config.reg.validate().map_err(config_error)?;
         config.regnerf.validate().map_err(config_error)?;
+        config.priors.validate().map_err(config_error)?;
         config.check_paths().map_err(config_error)?;
         if config.train.rays_per_batch == 0 || config.train.max_samples == 0 {
             return Err(config_error(format!(
@@ -343,7 +350,7 @@ impl Trainer {
                 )));
             }
         }
-        let model = Model::new(&gpu, &scene, config.clone())?;
+        let mut model = Model::new(&gpu, &scene, config.clone())?;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
         let n = config.train.rays_per_batch;
         let r = &config.regnerf;
@@ -357,8 +364,15 @@ impl Trainer {
         let n_all = n + n_tv;
         let capacity = (config.train.max_samples as u64 * n_all as u64 / n.max(1) as u64).min(u32::MAX as u64) as u32;
         let has_alpha = scene.train_views().any(|v| v.alpha.is_some());
+        // The priors apply to every rendered ray of a batch, random-pose rays included.
+        let priors = config.priors.weights(n_all, scene.near, scene.far);
+        model.renderer.set_priors(priors);
         let random_bg_renderer = (config.train.random_background && has_alpha)
-            .then(|| Renderer::new(&gpu, RenderConfig { background: Background::Random, ..*model.renderer.config() }))
+            .then(|| -> Result<Renderer, TrainError> {
+                let mut r = Renderer::new(&gpu, RenderConfig { background: Background::Random, ..*model.renderer.config() })?;
+                r.set_priors(priors);
+                Ok(r)
+            })
             .transpose()?;
         Ok(Trainer {
             random_bg_renderer,
@@ -564,7 +578,17 @@ impl Trainer {
         let mse = self.photometric.mse(&gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
         let reg_losses = if reg.is_some() { self.edge_reg.losses(&gpu, n / 4)? } else { EdgeRegLosses::default() };
         let loss_tv = if tv_weight.is_some() { self.depth_tv.loss(&gpu, n_tv)? } else { 0.0 };
-        for (value, what) in [(mse, "the photometric loss"), (reg_losses.depth, "L_z"), (reg_losses.normal, "L_n"), (loss_tv, "the depth TV")] {
+        let priors = *renderer.priors();
+        let (loss_distortion, loss_occlusion) =
+            if self.config().priors.active() { priors.losses(&bufs.render_out.aux.read(&gpu)?) } else { (0.0, 0.0) };
+        for (value, what) in [
+            (mse, "the photometric loss"),
+            (reg_losses.depth, "L_z"),
+            (reg_losses.normal, "L_n"),
+            (loss_tv, "the depth TV"),
+            (loss_distortion, "the distortion prior"),
+            (loss_occlusion, "the occlusion prior"),
+        ] {
             if !value.is_finite() {
                 self.step += 1;
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -597,7 +621,12 @@ impl Trainer {
         let lambda_tv = tv_weight.unwrap_or(0.0);
         Ok(StepStats {
             step,
-            loss: lambda_color * mse + lambda_depth * reg_losses.depth + lambda_normal * reg_losses.normal + lambda_tv * loss_tv,
+            loss: lambda_color * mse
+                + lambda_depth * reg_losses.depth
+                + lambda_normal * reg_losses.normal
+                + lambda_tv * loss_tv
+                + priors.lambda_distortion * loss_distortion
+                + priors.lambda_occlusion * loss_occlusion,
             loss_color: mse,
             psnr: psnr(mse),
             loss_depth: reg_losses.depth,
@@ -614,6 +643,8 @@ impl Trainer {
             lambda_tv,
             rays_dropped,
             sample_capacity,
+            loss_distortion,
+            loss_occlusion,
         })
     }
 

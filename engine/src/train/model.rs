@@ -104,6 +104,39 @@ pub fn footprint(scene: &Scene, sampler: &crate::sampler::SamplerConfig) -> Foot
     Footprint { radius0, radius1, point_var: cell * cell / 12.0 }
 }
 
+/// Whether the box `lo..hi` (world space) can appear in a training image: for some
+/// training camera, its corners are not all behind the camera and the bounding
+/// rectangle of their projections overlaps the image (conservative: a box straddling
+/// the camera plane counts as seen). NDC scenes need no such test: their box is the
+/// reference frustum.
+pub fn seen_by_training_cameras(scene: &Scene, lo: glam::Vec3, hi: glam::Vec3) -> bool {
+    scene.train_views().any(|v| {
+        let cam = &v.camera;
+        let w2c = cam.w2c();
+        let (mut min, mut max) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
+        let mut behind = 0;
+        for k in 0..8 {
+            let corner = glam::Vec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            match cam.project_with(&w2c, corner) {
+                Some((px, _)) => {
+                    min = min.min(px);
+                    max = max.max(px);
+                }
+                None => behind += 1,
+            }
+        }
+        match behind {
+            8 => false,
+            0 => max.x >= 0.0 && max.y >= 0.0 && min.x < cam.width as f32 && min.y < cam.height as f32,
+            _ => true,
+        }
+    })
+}
+
 /// The background a run renders over: the configured one, else the scene's, else black.
 pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
     match config.scene.background.or(scene.background) {
@@ -119,7 +152,10 @@ impl Model {
             Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
             Backend::Mlp => Box::new(MlpField::new(gpu, &config.mlp, scene.aabb, footprint(scene, &config.sampler))?),
         };
-        let grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
+        let mut grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
+        if config.sampler.seen_cells_only && scene.ndc.is_none() {
+            grid.restrict_to_seen(gpu, |lo, hi| seen_by_training_cameras(scene, lo, hi))?;
+        }
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
         render_config.background = background_of(&config, scene);

@@ -328,6 +328,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         if stats.lambda_tv > 0.0 {
             reg += &format!(" Ltv {:.2e}", stats.loss_tv);
         }
+        if config.priors.distortion > 0.0 {
+            reg += &format!(" Ldist {:.2e}", stats.loss_distortion);
+        }
+        if config.priors.occlusion > 0.0 {
+            reg += &format!(" Locc {:.2e}", stats.loss_occlusion);
+        }
         bar.set_message(format!(
             "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
             stats.loss_color, ema, stats.samples_per_ray, steps_per_s

@@ -1,0 +1,129 @@
+//! Sparse-view priors on a ray's sample weights and densities, evaluated inside the
+//! compositing kernels because they need every sample of a ray in order, which only
+//! the renderer walks: mip-NeRF 360's distortion loss and FreeNeRF's occlusion
+//! regularization. Both fight the fog and floaters that few views leave in space
+//! no training ray pins down.
+//!
+//! # The terms (per ray, over its `K` contributing samples, midpoints `m_i = t_i`)
+//! ```text
+//! distortion  D = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 dt_i
+//! occlusion   O = sum_{i : t_i < t_occ} sigma_i dt_i
+//! ```
+//! `D` is small when a ray's weight is one compact blob (a surface) and large when it is
+//! spread along the ray (fog, floaters in front of a surface). `O` is the optical
+//! thickness of the first stretch of the ray, where FreeNeRF observed sparse-view
+//! floaters sit (density right in front of the cameras explains a training pixel from
+//! that camera alone).
+//!
+//! Batch losses, `n` rays, scene depth range `S = far - near` (1 in NDC), occlusion
+//! range `t_occ = near + f S`:
+//! ```text
+//! L_dist = lambda_dist / n  sum_r D_r / S          (ray parameter normalised to [0, 1],
+//!                                                   as mip-NeRF 360's s-space)
+//! L_occ  = lambda_occ  / n  sum_r O_r / (f S)      (the mean density over the range,
+//!                                                   FreeNeRF's mean over its first samples)
+//! ```
+//!
+//! # Gradients (in `composite.wgsl::backward`)
+//! With `W_<i, M_<i` the prefix sums of `w` and `w m` and `W_>i, M_>i` the suffix sums
+//! (taken from the forward's `opacity` and `depth`):
+//! `dD/dw_i = 2 (m_i W_<i - M_<i + M_>i - m_i W_>i) + 2/3 w_i dt_i`, which joins the
+//! per-sample `u_i` of the compositing backward, and `sum_i w_i dD/dw_i = 2 D` (`D` is
+//! homogeneous of degree 2 in the weights) joins its suffix-sum total; so the one
+//! front-to-back pass stays one pass. `dO/dsigma_i = dt_i` goes to the density gradient
+//! directly.
+//!
+//! Invariants: the forward pass always stores `D` and `O` of every ray in
+//! [`super::RayAux`] (with the renderer's `occlusion_end`); the backward adds the terms
+//! only with non-zero weights, so a renderer without priors computes exactly what it
+//! did before.
+
+/// The priors' settings in a run configuration (`[priors]`). Both off by default.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PriorConfig {
+    /// Weight of mip-NeRF 360's distortion loss (0: off; mip-NeRF 360 uses 0.01).
+    pub distortion: f32,
+    /// Weight of FreeNeRF's occlusion regularization (0: off; FreeNeRF uses 0.01).
+    pub occlusion: f32,
+    /// The occlusion range as a fraction of `far - near` from `near` (FreeNeRF: its
+    /// first 10 of 128 samples, 0.08 of the range).
+    pub occlusion_range: f32,
+}
+
+impl Default for PriorConfig {
+    fn default() -> Self {
+        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08 }
+    }
+}
+
+impl PriorConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, v) in [("priors.distortion", self.distortion), ("priors.occlusion", self.occlusion)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} must be a finite weight >= 0, got {v}"));
+            }
+        }
+        let f = self.occlusion_range;
+        if !(f.is_finite() && f > 0.0 && f <= 1.0) {
+            return Err(format!("priors.occlusion_range must be in (0, 1] (a fraction of far - near), got {f}"));
+        }
+        Ok(())
+    }
+
+    /// Whether either term is on.
+    pub fn active(&self) -> bool {
+        self.distortion > 0.0 || self.occlusion > 0.0
+    }
+
+    /// The kernel weights for batches of `n_rays` rays of a scene whose rays span
+    /// `near ..= far` (see the module doc).
+    pub fn weights(&self, n_rays: u32, near: f32, far: f32) -> RayPriors {
+        let span = (far - near).max(f32::MIN_POSITIVE);
+        let n = n_rays.max(1) as f32;
+        let range = self.occlusion_range * span;
+        RayPriors {
+            lambda_distortion: self.distortion,
+            lambda_occlusion: self.occlusion,
+            distortion_scale: 1.0 / (n * span),
+            occlusion_scale: 1.0 / (n * range),
+            occlusion_end: if self.occlusion > 0.0 { near + range } else { f32::MIN },
+        }
+    }
+}
+
+/// What the compositing kernels apply: the batch loss is
+/// `lambda_distortion distortion_scale sum_r D_r + lambda_occlusion occlusion_scale sum_r O_r`,
+/// with `O` over the samples whose ray parameter is below `occlusion_end`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayPriors {
+    pub lambda_distortion: f32,
+    pub lambda_occlusion: f32,
+    pub distortion_scale: f32,
+    pub occlusion_scale: f32,
+    pub occlusion_end: f32,
+}
+
+impl Default for RayPriors {
+    fn default() -> Self {
+        Self { lambda_distortion: 0.0, lambda_occlusion: 0.0, distortion_scale: 0.0, occlusion_scale: 0.0, occlusion_end: f32::MIN }
+    }
+}
+
+impl RayPriors {
+    /// The coefficients of the per-ray `D` and `O` in the batch loss.
+    pub fn coefficients(&self) -> (f32, f32) {
+        (self.lambda_distortion * self.distortion_scale, self.lambda_occlusion * self.occlusion_scale)
+    }
+
+    /// The unweighted batch losses `(L_dist, L_occ)` (without their lambdas) from the
+    /// forward pass's per-ray [`super::RayAux`].
+    pub fn losses(&self, aux: &[super::RayAux]) -> (f32, f32) {
+        let (mut d, mut o) = (0.0f64, 0.0f64);
+        for a in aux {
+            d += a.distortion as f64;
+            o += a.occlusion as f64;
+        }
+        ((self.distortion_scale as f64 * d) as f32, (self.occlusion_scale as f64 * o) as f32)
+    }
+}
