@@ -1,4 +1,4 @@
-"""The seven synthetic scenes: geometry, materials, lighting and camera layouts.
+"""The eight synthetic scenes: geometry, materials, lighting and camera layouts.
 
 Each scene is a purposeful test of one thing a sparse-view NeRF with edge-guided
 depth / normal regularisation must get right. World space is +z up, units are
@@ -12,6 +12,10 @@ Layouts:
                   the scene, looking at its centre (DTU / NeRF-synthetic-like).
 * ``turntable`` - Blender / NeRF-synthetic-like: training cameras at random on the
                   upper hemisphere, test cameras on a ring (a turntable path).
+* ``inward``    - inside-out: cameras stand inside a room on a horizontal circle
+                  around its centre and look inward, each seeing the opposite walls;
+                  training views on an arc of 240 deg (so any three evenly picked views
+                  are ~120 deg apart), test views spread over the full circle.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ class Shape:
 class SceneSpec:
     name: str
     description: str
-    layout: str  # "forward" | "object" | "turntable"
+    layout: str  # "forward" | "object" | "turntable" | "inward"
     aabb: tuple[tuple[float, float, float], tuple[float, float, float]]
     near: float
     far: float
@@ -124,6 +128,30 @@ def turntable_cameras(radius, target, elev_min, elev_max, test_elev, seed):
         te = g.ring(n_test, test_elev, phase=0.3)
         return ([g.look_at(target + radius * d, target) for d in tr],
                 [g.look_at(target + radius * d, target) for d in te])
+
+    return make
+
+
+def inward_cameras(radius, height, height_var, target, arc_deg=240.0, test_phase_deg=0.0):
+    """Inside-out layout: camera centres on a horizontal circle of `radius` around the
+    point under `target`, at heights `height` +- `height_var` (a fixed wobble, so no two
+    views share a height), every camera looking at `target`. Training camera i sits at
+    azimuth arc_deg * i / (n_train - 1) (counter-clockwise from +x): with the default
+    240 deg, the views at round(linspace(0, n_train - 1, 3)) are ~120 deg apart and face
+    three different parts of the room. Test cameras are evenly spaced over the full
+    circle, at azimuths 360 * (j + 0.5) / n_test + test_phase_deg: between the training
+    views on the arc, and in the 120 deg gap the training views leave."""
+    target = np.asarray(target, float)
+
+    def eye(az_deg: float, k: float) -> np.ndarray:
+        a = math.radians(az_deg)
+        z = height + height_var * math.sin(2.3 * k + 0.4)
+        return np.array([target[0] + radius * math.cos(a), target[1] + radius * math.sin(a), z])
+
+    def make(n_train: int, n_test: int):
+        tr = [eye(arc_deg * i / max(n_train - 1, 1), i) for i in range(n_train)]
+        te = [eye(360.0 * (j + 0.5) / n_test + test_phase_deg, j + 0.5) for j in range(n_test)]
+        return [g.look_at(e, target) for e in tr], [g.look_at(e, target) for e in te]
 
     return make
 
@@ -372,6 +400,77 @@ def build_turntable() -> list[Shape]:
     return s
 
 
+def build_room() -> list[Shape]:
+    # the inside of a 4 x 4 m room, walls 2.4 m high, no ceiling: sun and sky come in from above
+    L, H = 2.0, 2.4
+    planks = g.stripes(256, 24, (0.46, 0.33, 0.21), (0.52, 0.38, 0.24), vertical=True)
+    s = [Shape("floor", g.quad((-L, -L, 0), (L, -L, 0), (L, L, 0), (-L, L, 0)), texture=planks)]
+    # one plain colour per wall (quads facing inward)
+    for name, p0, p1, col in (("wall_north", (L, L), (-L, L), (0.55, 0.6, 0.7)),
+                              ("wall_west", (-L, L), (-L, -L), (0.74, 0.5, 0.44)),
+                              ("wall_south", (-L, -L), (L, -L), (0.75, 0.67, 0.52)),
+                              ("wall_east", (L, -L), (L, L), (0.52, 0.62, 0.45))):
+        s.append(Shape(name, g.quad((*p0, 0), (*p1, 0), (*p1, H), (*p0, H)), color=col))
+    # a poster on the north wall, 1 cm in front of it, hung low: the cameras look down at the
+    # room's centre and see the walls only up to 1.05-1.2 m
+    s.append(Shape("poster", g.quad((-1.1, 1.99, 0.3), (0.3, 1.99, 0.3), (0.3, 1.99, 1.0), (-1.1, 1.99, 1.0)),
+                   texture=_poster_texture()))
+    # a low sofa of boxes along the west wall: base, back, arms, two cushions with a 2 cm gap
+    sofa = [g.box((-1.95, -0.9, 0.0), (-1.35, 0.9, 0.22)), g.box((-1.97, -0.9, 0.22), (-1.8, 0.9, 0.8)),
+            g.box((-1.97, -1.05, 0.0), (-1.35, -0.9, 0.55)), g.box((-1.97, 0.9, 0.0), (-1.35, 1.05, 0.55))]
+    s.append(Shape("sofa", g.merge(sofa), color=(0.16, 0.36, 0.4)))
+    s.append(Shape("cushions", g.merge([g.box((-1.8, -0.9, 0.22), (-1.38, -0.01, 0.36)),
+                                        g.box((-1.8, 0.01, 0.22), (-1.38, 0.9, 0.36))]), color=(0.8, 0.72, 0.45)))
+    # a checkered rug (1.2 cm thick) in front of the sofa, a ball on it
+    rug = g.checker(512, 8, (0.62, 0.12, 0.1), (0.82, 0.78, 0.68))
+    s.append(Shape("rug", g.box((-1.28, -0.6, 0.0), (-0.08, 0.6, 0.012)), texture=rug))
+    s.append(Shape("ball", sphere=((-0.7, -0.25, 0.012 + 0.18), 0.18), color=(0.2, 0.42, 0.75)))
+    # a table with a wood-striped top and thin legs, a few things on it
+    wood = g.stripes(256, 24, (0.45, 0.3, 0.18), (0.5, 0.34, 0.2), vertical=False)
+    top = 0.74
+    s.append(Shape("tabletop", g.box((-0.2, 0.1, top - 0.04), (0.9, 0.8, top)), texture=wood))
+    s.append(Shape("table_legs", g.merge([g.box((x - 0.025, y - 0.025, 0.0), (x + 0.025, y + 0.025, top - 0.04))
+                                          for x in (-0.14, 0.84) for y in (0.16, 0.74)]), color=(0.3, 0.2, 0.12)))
+    s += _mug(0.0, 0.3, top, 0.055, 0.11, (0.88, 0.88, 0.85), "mug", angle=210)
+    bowl = g.lathe([(0.0, 0.0), (0.09, 0.0), (0.15, 0.045), (0.18, 0.1), (0.168, 0.1), (0.14, 0.055),
+                    (0.085, 0.015), (0.0, 0.015)], n=96, samples=4)
+    s.append(Shape("bowl", bowl.transformed(g.translate((0.45, 0.5, top))), color=(0.75, 0.4, 0.2)))
+    s.append(Shape("orange", sphere=((0.43, 0.48, top + 0.015 + 0.065), 0.065), color=(0.85, 0.42, 0.06)))
+    bottle = g.lathe([(0.0, 0.0), (0.055, 0.0), (0.06, 0.02), (0.06, 0.2), (0.04, 0.25), (0.02, 0.28),
+                      (0.02, 0.35), (0.0, 0.35)], n=64, samples=4)
+    s.append(Shape("bottle", bottle.transformed(g.translate((0.78, 0.68, top))), color=(0.12, 0.35, 0.18)))
+    books = [_place(g.box((-0.15, -0.1, 0.0), (0.15, 0.1, 0.05)), g.translate((0.08, 0.64, top)), g.rot_z(8)),
+             _place(g.box((-0.13, -0.09, 0.0), (0.13, 0.09, 0.06)), g.translate((0.07, 0.65, top + 0.05)), g.rot_z(-6))]
+    s.append(Shape("books", g.merge(books), color=(0.6, 0.15, 0.12)))
+    s.append(Shape("small_box", _place(g.box((-0.09, -0.06, 0.0), (0.09, 0.06, 0.1)), g.translate((0.7, 0.25, top)),
+                                       g.rot_z(-30)), color=(0.55, 0.6, 0.8)))
+    # a sideboard along the south wall with a vase on it
+    s.append(Shape("sideboard", g.box((-0.4, -1.95, 0.0), (1.2, -1.55, 0.65)), color=(0.82, 0.8, 0.76)))
+    vase = g.lathe([(0.0, 0.0), (0.07, 0.0), (0.11, 0.08), (0.1, 0.2), (0.05, 0.28), (0.06, 0.33), (0.0, 0.33)],
+                   n=64, samples=6)
+    s.append(Shape("vase", vase.transformed(g.translate((0.05, -1.75, 0.65))), color=(0.25, 0.3, 0.6)))
+    # two stacked boxes on the floor near the east wall, turned differently
+    s.append(Shape("crate", _place(g.box((-0.22, -0.22, 0.0), (0.22, 0.22, 0.44)), g.translate((1.6, -0.9, 0.0)),
+                                   g.rot_z(25)), color=(0.8, 0.45, 0.15)))
+    s.append(Shape("crate_top", _place(g.box((-0.13, -0.13, 0.0), (0.13, 0.13, 0.22)), g.translate((1.6, -0.9, 0.44)),
+                                       g.rot_z(-10)),
+                   texture=g.stripes(256, 8, (0.1, 0.2, 0.55), (0.9, 0.85, 0.6), vertical=True)))
+    # a striped board leaning against the east wall (tilted 11 deg), lifted 3 mm off the floor
+    board = g.box((-0.0125, -0.3, 0.0), (0.0125, 0.3, 1.2))
+    s.append(Shape("board", _place(board, g.translate((1.75, 0.6, 0.003)), g.rot_y(11)),
+                   texture=g.stripes(256, 6, (0.15, 0.25, 0.5), (0.85, 0.8, 0.6), vertical=False)))
+    # a low floor lamp in the north-east corner: disc base, thin rod, open conical shade
+    s.append(Shape("lamp_base", g.cylinder(0.16, 0.0, 0.03, 64).transformed(g.translate((1.65, 1.65, 0.0))),
+                   color=(0.15, 0.15, 0.16)))
+    s.append(Shape("lamp_rod", g.rod((1.65, 1.65, 0.03), (1.65, 1.65, 0.85), 0.018, 16), color=(0.15, 0.15, 0.16)))
+    s.append(Shape("lamp_shade", g.lathe([(0.2, 0.8), (0.11, 1.05)], n=96, sharp=True)
+                   .transformed(g.translate((1.65, 1.65, 0.0))), color=(0.9, 0.85, 0.65)))
+    # a round pouf in the north-west corner
+    s.append(Shape("pouf", g.cylinder(0.22, 0.0, 0.42, 64).transformed(g.translate((-1.55, 1.5, 0.0))),
+                   color=(0.85, 0.68, 0.2)))
+    return s
+
+
 SCENES: dict[str, SceneSpec] = {}
 
 
@@ -458,4 +557,19 @@ _add(SceneSpec(
     cameras=turntable_cameras(radius=3.3, target=(0.0, 0.0, 0.85), elev_min=5.0, elev_max=75.0, test_elev=25.0,
                               seed=3),
     sun_dir=(0.4, 0.5, -0.77),
+))
+
+_add(SceneSpec(
+    name="room",
+    description=("The inside of a small room (4 x 4 m floor, walls 2.4 m high, a different colour per "
+                 "wall, no ceiling) seen from inside: a low sofa of boxes, a checkered rug with a ball, a "
+                 "table with a mug, a bowl with an orange, a bottle, books and a box, a sideboard with a "
+                 "vase, two stacked boxes, a striped board leaning on a wall, a floor lamp (thin rod and "
+                 "open shade), a round pouf and a poster; plank-striped floor. Inward cameras on a circle "
+                 "of radius 1.5 around the centre, training views over 240 deg so that three picked "
+                 "views are ~120 deg apart; the aabb is the room plus 5 cm."),
+    layout="inward", aabb=((-2.05, -2.05, -0.05), (2.05, 2.05, 2.45)), near=0.3, far=5.5, fov_x=60.0,
+    aspect=4 / 3, background="geometry", build=build_room,
+    cameras=inward_cameras(radius=1.5, height=1.4, height_var=0.1, target=(0.0, 0.0, 0.6)),
+    sun_dir=(0.3, 0.4, -0.87),
 ))

@@ -22,7 +22,7 @@ use std::process::Command;
 use edgenerf::data::{LoadOptions, Scene, SceneFormat, View};
 use glam::Vec3;
 
-const SCENES: [&str; 7] = ["occlusion", "creases", "texture", "thin", "smooth", "table", "turntable"];
+const SCENES: [&str; 8] = ["occlusion", "creases", "texture", "thin", "smooth", "table", "turntable", "room"];
 
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
