@@ -35,6 +35,9 @@ enum Command {
     Eval(cmd::eval::Args),
     /// Run a benchmark suite (scenes x configurations), then write results and a report.
     Bench(cmd::bench::Args),
+    /// Training speed on this adapter: steps/s and time per stage of a step (demo and
+    /// sparse-view preset, or a scene and config of your own), as a table and JSON.
+    Speed(cmd::speed::Args),
     /// Edge masks of a scene's views (what the edge-guided losses see), with overlays.
     Edges(cmd::edges::Args),
     /// Synthetic ground-truth scenes (Mitsuba): render them.
@@ -65,6 +68,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(args) => cmd::render::run(args, &gpu_opts),
         Command::Eval(args) => cmd::eval::run(args, &gpu_opts),
         Command::Bench(args) => cmd::bench::run(args, cli.adapter.as_deref()),
+        Command::Speed(args) => cmd::speed::run(args, &gpu_opts),
         Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
     }

@@ -35,6 +35,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod model;
+pub mod profile;
 pub mod random_poses;
 pub mod rays;
 pub mod regnerf;
@@ -57,6 +58,7 @@ use crate::samples::{self as samples_gpu, FieldGrads, RayOutput};
 pub use checkpoint::Checkpoint;
 pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
 pub use model::{Model, RenderedView};
+pub use profile::{Stage, StageTimes};
 pub use regnerf::RegNerfConfig;
 
 use model::BatchBuffers;
@@ -296,6 +298,8 @@ pub struct Trainer {
     d_rays: GpuBuffer<RayOutput>,
     field_grads: FieldGrads,
     step: u64,
+    /// Per-stage timing ([`profile`]); `None`: off.
+    profile: Option<StageTimes>,
 }
 
 impl Trainer {
@@ -393,6 +397,7 @@ impl Trainer {
             model,
             adam,
             step: 0,
+            profile: None,
         })
     }
 
@@ -442,8 +447,32 @@ impl Trainer {
 
     /// One optimisation step (see the module doc).
     pub fn step(&mut self) -> Result<StepStats, TrainError> {
+        if let Some(p) = &mut self.profile {
+            p.begin();
+        }
         let batch = self.draw_batch()?;
+        self.end_stage(Stage::Batch)?;
         self.step_on(batch)
+    }
+
+    /// Switches per-stage timing on (from zero) or off; see [`profile`].
+    pub fn set_profiling(&mut self, on: bool) {
+        self.profile = on.then(StageTimes::default);
+    }
+
+    /// The stage times accumulated since profiling was switched on.
+    pub fn stage_times(&self) -> Option<&StageTimes> {
+        self.profile.as_ref()
+    }
+
+    /// With profiling on, waits for the GPU and charges the time since the last stage
+    /// to `stage`.
+    fn end_stage(&mut self, stage: Stage) -> Result<(), TrainError> {
+        if let Some(p) = &mut self.profile {
+            self.gpu.wait()?;
+            p.end(stage);
+        }
+        Ok(())
     }
 
     /// The batch [`Trainer::step`] trains on next: 2x2 patches with their edge masks or
@@ -500,6 +529,7 @@ impl Trainer {
         }
         self.apply_level_anneal();
         self.model.update_grid(&gpu, step, self.grid_seed(), false)?;
+        self.end_stage(Stage::OccupancyGrid)?;
         let patches = self.config().train.batch == BatchKind::Patches && batch.reg.len() == n as usize;
         let reg = if patches { self.config().reg.weights_at(step, is_dtu(&self.scene)) } else { None };
         let normals = reg.is_some_and(|w| w.lambda_normal > 0.0);
@@ -538,7 +568,10 @@ impl Trainer {
         self.bufs.rays.write(&gpu, &rays);
         self.targets.write(&gpu, &targets);
         let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
-        self.model.sample_and_shade(&gpu, &self.bufs, Some(jitter), normals)?;
+        self.model.sample(&gpu, &self.bufs, Some(jitter))?;
+        self.end_stage(Stage::Sampler)?;
+        self.model.field.forward(&gpu, &self.bufs.batch, &self.bufs.field_out, normals)?;
+        self.end_stage(Stage::FieldForward)?;
 
         let bufs = &self.bufs;
         let renderer = self.random_bg_renderer.as_ref().unwrap_or(&self.model.renderer);
@@ -594,8 +627,10 @@ impl Trainer {
                 return Err(TrainError::NonFinite { step, what: what.into() });
             }
         }
+        self.end_stage(Stage::RenderAndLosses)?;
         self.model.field.zero_grads(&gpu);
-        self.model.field.backward(&gpu, &bufs.batch, &self.field_grads, normals)?;
+        self.model.field.backward(&gpu, &self.bufs.batch, &self.field_grads, normals)?;
+        self.end_stage(Stage::FieldBackward)?;
 
         // Schedules count steps from 1 (mip-NeRF convention).
         let lr = self.config().optim.schedule.lr(step + 1);
@@ -607,7 +642,12 @@ impl Trainer {
         enc.submit();
 
         let grad = self.grad_norm.read(&gpu)?;
-        let counts = bufs.batch.count.read(&gpu)?;
+        let counts = self.bufs.batch.count.read(&gpu)?;
+        self.end_stage(Stage::Optimizer)?;
+        if let Some(p) = &mut self.profile {
+            p.steps += 1;
+            p.field_samples += counts[0] as u64;
+        }
         self.step += 1;
         let sample_capacity = self.bufs.batch.capacity;
         if self.config().train.grow_capacity {

@@ -190,13 +190,20 @@ impl Model {
         jitter_seed: Option<u32>,
         normals: bool,
     ) -> Result<(), TrainError> {
+        self.sample(gpu, bufs, jitter_seed)?;
+        self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
+        Ok(())
+    }
+
+    /// Samples `bufs.rays[..n]` into `bufs.batch` (the first half of
+    /// [`Model::sample_and_shade`]).
+    pub(super) fn sample(&mut self, gpu: &Gpu, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
             SamplerMode::Occupancy => March::Occupancy(&self.grid),
             SamplerMode::Uniform => March::Uniform,
         };
         self.sampler.sample(gpu, march, &bufs.rays, &bufs.batch, jitter_seed)?;
-        self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
         Ok(())
     }
 

@@ -5,6 +5,7 @@ pub mod eval;
 pub mod info;
 pub mod render;
 pub mod scenes;
+pub mod speed;
 pub mod train;
 
 use std::path::PathBuf;

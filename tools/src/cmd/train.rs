@@ -130,7 +130,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     Ok(config)
 }
 
-fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
+pub(crate) fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
     let mut opts = LoadOptions { views: config.scene.views, ..Default::default() };
     if let Some(bg) = config.scene.background {
         opts.background = bg;

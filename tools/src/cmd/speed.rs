@@ -1,0 +1,203 @@
+//! `edgenerf speed`: training speed on the adapter in use, per stage of a step, for the
+//! demo and the sparse-view preset (or any scene and config): steps/s of plain steps,
+//! then the same steps profiled stage by stage ([`edgenerf::train::profile`]), field
+//! samples per second of the forward and backward passes, as a table and as JSON.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use edgenerf::gpu::{Gpu, GpuOptions};
+use edgenerf::train::{RunConfig, Stage, StageTimes, Trainer};
+use indicatif::{ProgressBar, ProgressStyle};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// What to time: the demo (smooth, all views, tools/configs/demo.toml), the
+    /// sparse-view preset (creases, 3 views, tools/configs/sparse-small.toml), or both.
+    /// Paths are relative to the repository root; use --scene/--config for others.
+    #[arg(long, value_parser = ["demo", "sparse-small", "all"], default_value = "all", conflicts_with = "scene")]
+    preset: String,
+    /// A scene of your own (with --config and --views).
+    #[arg(long, requires = "config")]
+    scene: Option<PathBuf>,
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, short = 'k')]
+    views: Option<usize>,
+    /// Steps before timing (the occupancy grid's warm-up and the sample capacity settle).
+    #[arg(long, default_value_t = 20)]
+    warmup: u64,
+    /// Steps timed plain, then as many profiled.
+    #[arg(long, default_value_t = 30)]
+    steps: u64,
+    /// Directory for speed.json.
+    #[arg(long, default_value = "runs/speed")]
+    out: PathBuf,
+}
+
+/// One timed configuration.
+struct Case {
+    name: String,
+    scene: PathBuf,
+    config: PathBuf,
+    views: Option<usize>,
+}
+
+#[derive(serde::Serialize)]
+struct StageRow {
+    stage: &'static str,
+    ms_per_step: f64,
+    share: f64,
+}
+
+#[derive(serde::Serialize)]
+struct CaseResult {
+    name: String,
+    scene: String,
+    config: String,
+    train_views: usize,
+    rays_per_step: u32,
+    steps: u64,
+    steps_per_s: f64,
+    ms_per_step: f64,
+    profiled_ms_per_step: f64,
+    samples_per_step: f64,
+    field_forward_samples_per_s: f64,
+    field_backward_samples_per_s: f64,
+    stages: Vec<StageRow>,
+}
+
+#[derive(serde::Serialize)]
+struct Report {
+    adapter: String,
+    backend: String,
+    warmup: u64,
+    cases: Vec<CaseResult>,
+}
+
+fn cases(args: &Args) -> Vec<Case> {
+    if let (Some(scene), Some(config)) = (&args.scene, &args.config) {
+        return vec![Case { name: "custom".into(), scene: scene.clone(), config: config.clone(), views: args.views }];
+    }
+    let demo = Case {
+        name: "demo".into(),
+        scene: "synthetic-scenes/small/smooth".into(),
+        config: "tools/configs/demo.toml".into(),
+        views: None,
+    };
+    let sparse = Case {
+        name: "sparse-small".into(),
+        scene: "synthetic-scenes/small/creases".into(),
+        config: "tools/configs/sparse-small.toml".into(),
+        views: Some(3),
+    };
+    match args.preset.as_str() {
+        "demo" => vec![demo],
+        "sparse-small" => vec![sparse],
+        _ => vec![demo, sparse],
+    }
+}
+
+fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> {
+    for p in [&case.scene, &case.config] {
+        if !p.exists() {
+            bail!("{} not found: run `edgenerf speed` from the repository root, or pass --scene and --config", p.display());
+        }
+    }
+    let mut config = RunConfig::from_file_for(&case.config, None)?;
+    config.scene.path = case.scene.clone();
+    config.scene.views = case.views;
+    // Every term of the config at full weight from the first step: the timed steps are
+    // those of the rest of a run (a preset's regularizer schedule starts them later).
+    config.reg.start_step = 0;
+    config.reg.warmup_steps = 0;
+    config.resolve();
+    let scene = super::train::load_scene(&config)?;
+    let mut trainer = Trainer::new(gpu.clone(), scene, config)?;
+    let total = args.warmup + 2 * args.steps;
+    let bar = ProgressBar::new(total);
+    bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
+    bar.set_prefix(case.name.clone());
+    let mut step = |msg: &str| -> anyhow::Result<()> {
+        trainer.step().with_context(|| format!("{}: training step", case.name))?;
+        bar.set_message(msg.to_string());
+        bar.inc(1);
+        Ok(())
+    };
+    for _ in 0..args.warmup {
+        step("warm-up")?;
+    }
+    let start = Instant::now();
+    for _ in 0..args.steps {
+        step("plain steps")?;
+    }
+    let plain_s = start.elapsed().as_secs_f64();
+    trainer.set_profiling(true);
+    for _ in 0..args.steps {
+        trainer.step().with_context(|| format!("{}: profiled step", case.name))?;
+        bar.set_message("profiled steps");
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let times: StageTimes = trainer.stage_times().cloned().expect("profiling is on");
+    let n = times.steps.max(1) as f64;
+    let total_s = times.total();
+    let per_s = |samples: u64, seconds: f64| samples as f64 / seconds.max(1e-12);
+    Ok(CaseResult {
+        name: case.name.clone(),
+        scene: case.scene.display().to_string(),
+        config: case.config.display().to_string(),
+        train_views: trainer.scene.split.train.len(),
+        rays_per_step: trainer.config().train.rays_per_batch,
+        steps: args.steps,
+        steps_per_s: args.steps as f64 / plain_s.max(1e-12),
+        ms_per_step: 1e3 * plain_s / args.steps.max(1) as f64,
+        profiled_ms_per_step: 1e3 * total_s / n,
+        samples_per_step: times.field_samples as f64 / n,
+        field_forward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldForward)),
+        field_backward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldBackward)),
+        stages: Stage::ALL
+            .iter()
+            .map(|&s| StageRow { stage: s.name(), ms_per_step: 1e3 * times.of(s) / n, share: times.of(s) / total_s.max(1e-12) })
+            .collect(),
+    })
+}
+
+fn print_case(r: &CaseResult) {
+    println!(
+        "{} ({}, {} training views, {} rays/step, {:.0} field samples/step)",
+        r.name, r.scene, r.train_views, r.rays_per_step, r.samples_per_step
+    );
+    println!("  plain: {:.2} steps/s ({:.1} ms/step); profiled stage by stage: {:.1} ms/step", r.steps_per_s, r.ms_per_step, r.profiled_ms_per_step);
+    println!("  {:<18} {:>9} {:>6}", "stage", "ms/step", "share");
+    for s in &r.stages {
+        println!("  {:<18} {:>9.2} {:>5.1}%", s.stage, s.ms_per_step, 100.0 * s.share);
+    }
+    println!(
+        "  field samples/s: forward {:.3} M, backward {:.3} M",
+        r.field_forward_samples_per_s / 1e6,
+        r.field_backward_samples_per_s / 1e6
+    );
+}
+
+pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
+    if args.steps == 0 {
+        bail!("--steps must be at least 1");
+    }
+    crate::output::ensure_dir(&args.out, "--out")?;
+    let gpu = Gpu::new(gpu_opts)?;
+    let adapter = gpu.adapter().clone();
+    println!("adapter: {} ({}, {})", adapter.name, adapter.backend, adapter.driver);
+    let mut results = Vec::new();
+    for case in cases(&args) {
+        let r = time_case(&gpu, &case, &args)?;
+        print_case(&r);
+        results.push(r);
+    }
+    let report = Report { adapter: adapter.name.clone(), backend: adapter.backend.clone(), warmup: args.warmup, cases: results };
+    let path = args.out.join("speed.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)?).with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! `edgenerf speed` (per-stage timing, JSON) and `train` with the sparse-view priors
+//! (`priors.distortion`, `priors.occlusion`: logged in `log.csv`'s appended columns).
+
+mod common;
+
+use common::{command, edgenerf, repo, text};
+
+#[test]
+fn speed_reports_stages_that_add_up_and_field_throughput() {
+    let out = tempfile::tempdir().unwrap();
+    let o = command()
+        .current_dir(repo())
+        .args(["speed", "--preset", "sparse-small", "--warmup", "1", "--steps", "2", "--out"])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("field backward") && t.contains("steps/s"), "{t}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.path().join("speed.json")).unwrap()).unwrap();
+    let case = &json["cases"][0];
+    assert_eq!(case["name"], "sparse-small");
+    assert_eq!(case["train_views"], 3);
+    let stages = case["stages"].as_array().unwrap();
+    assert_eq!(stages.len(), 7);
+    let sum: f64 = stages.iter().map(|s| s["ms_per_step"].as_f64().unwrap()).sum();
+    let profiled = case["profiled_ms_per_step"].as_f64().unwrap();
+    assert!((sum - profiled).abs() <= 1e-6 * profiled, "stages {sum} vs total {profiled}");
+    let share: f64 = stages.iter().map(|s| s["share"].as_f64().unwrap()).sum();
+    assert!((share - 1.0).abs() < 1e-9);
+    for key in ["steps_per_s", "samples_per_step", "field_forward_samples_per_s", "field_backward_samples_per_s"] {
+        assert!(case[key].as_f64().unwrap() > 0.0, "{key}: {case}");
+    }
+    let field_ms = |name: &str| stages.iter().find(|s| s["stage"] == name).unwrap()["ms_per_step"].as_f64().unwrap();
+    assert!(field_ms("field forward") > 0.0 && field_ms("field backward") > 0.0);
+}
+
+#[test]
+fn speed_outside_the_repository_says_what_to_pass() {
+    let out = tempfile::tempdir().unwrap();
+    let o = command().current_dir(out.path()).args(["speed", "--preset", "demo", "--steps", "1"]).output().unwrap();
+    assert!(!o.status.success());
+    let t = text(&o);
+    assert!(t.contains("not found") && t.contains("--scene"), "{t}");
+}
+
+#[test]
+fn priors_train_and_are_logged() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let config = repo().join("tools/configs/sparse-small.toml");
+    let dir = out.path().join("priors");
+    let o = edgenerf(&[
+        "train",
+        scene.to_str().unwrap(),
+        "--views",
+        "3",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--iters",
+        "3",
+        "--no-eval",
+        "--no-depth-reg",
+        "--no-normal-reg",
+        "--set",
+        "priors.distortion=0.01",
+        "--set",
+        "priors.occlusion=0.01",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name} column"));
+    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 3);
+    for r in &rows {
+        // The untrained field (density ~1 everywhere) spreads every ray's weight along it.
+        assert!(r[col("loss_distortion")] > 0.0 && r[col("loss_occlusion")] >= 0.0, "{log}");
+        assert!(r[col("loss")] > r[col("loss_color")], "the priors enter the total loss: {log}");
+    }
+    // Each step trains on one view; some views' rays reach the box within the occlusion
+    // range (the first 8 % of near..far), where the untrained density is ~1.
+    assert!(rows.iter().any(|r| r[col("loss_occlusion")] > 0.0), "{log}");
+    let cfg = std::fs::read_to_string(dir.join("config.json")).unwrap();
+    assert!(cfg.contains("\"distortion\": 0.01"), "{cfg}");
+    // A bad weight is a config error naming the key.
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", out.path().join("bad").to_str().unwrap(), "--set", "priors.distortion=-1"]);
+    assert!(!o.status.success() && text(&o).contains("priors.distortion"), "{}", text(&o));
+}
