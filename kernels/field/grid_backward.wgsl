@@ -5,6 +5,12 @@
 // and writes the per-sample layer inputs and deltas to `scratch` for the weight-gradient
 // reduction (grid_outer.wgsl, grid_finalize.wgsl).
 //
+// A sample whose output gradients are all zero (every sample past a ray's early
+// termination, whose gradients the renderer zeroes) contributes exactly nothing: its
+// thread writes zero rows (so that the weight-gradient reduction reads finite zeros,
+// whatever a previous chunk left there) and returns without recomputing the field.
+// Samples of a ray are contiguous, so whole SIMD groups skip together.
+//
 // Scratch regions (vec4 offsets P.scratch[r], per-sample rows of dim4 vec4s, indexed
 // by the sample's position in the chunk):
 //   0 e (in4)     1 delta1 (width4)   2 a1 (width4)   3 dh (4)      4 dL/dg (in4)
@@ -56,9 +62,27 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         return;
     }
     let w4 = P.width4;
+    let d_out = d_rgb_density[i];
+    let with_normals = (P.flags & FLAG_NORMALS) != 0u;
+    let d_n = select(vec3<f32>(0.0), d_normal[i].xyz, with_normals);
+    if (all(d_out == vec4<f32>(0.0)) && all(d_n == vec3<f32>(0.0))) {
+        var zero: Vec64;
+        store(R_E, P.in4, local, &zero);
+        store(R_D1, w4, local, &zero);
+        store(R_A1, w4, local, &zero);
+        store(R_DH, 4u, local, &zero);
+        store(R_DG, P.in4, local, &zero);
+        store(R_XC, 8u, local, &zero);
+        store(R_DC1, w4, local, &zero);
+        store(R_AC1, w4, local, &zero);
+        store(R_DC2, w4, local, &zero);
+        store(R_AC2, w4, local, &zero);
+        scratch[region(R_DO) + local] = vec4<f32>(0.0);
+        return;
+    }
     let smp = samples[i];
     let up = to_unit(smp.pos);
-    let normal_grads = (P.flags & FLAG_NORMALS) != 0u && up.inside;
+    let normal_grads = with_normals && up.inside;
 
     // Forward recomputation.
     var e: Vec64;
@@ -75,7 +99,6 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let rgb = sigmoid3(o);
 
     // Colour MLP backward.
-    let d_out = d_rgb_density[i];
     let dout = vec4<f32>(d_out.xyz * rgb * (vec3<f32>(1.0) - rgb), 0.0);
     var dc2: Vec64;
     for (var j4 = 0u; j4 < w4; j4++) {

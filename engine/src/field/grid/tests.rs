@@ -217,9 +217,10 @@ fn field_grid_gpu_encoding_and_mlps_match_reference() {
     let m = s.field.reference(&s.gpu).unwrap();
     let out = FieldOutputs::new(&s.gpu, 128).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
-    // Zero output gradients: the backward still writes its per-sample forward values.
-    let zero = FieldOutputs::new(&s.gpu, 128).unwrap();
-    s.field.backward(&s.gpu, &s.batch, &zero, true).unwrap();
+    // Negligible output gradients (all-zero ones skip the sample): the backward writes
+    // its per-sample forward values.
+    let tiny = LossWeights { a: vec![1e-30; n], b: vec![[0.0; 4]; n], c: vec![[0.0; 4]; n] };
+    s.field.backward(&s.gpu, &s.batch, &tiny.upload(&s.gpu, 128), true).unwrap();
     let (density, rgb, _) = out.read(&s.gpu).unwrap();
     let e_rows = scratch_rows(&s, region::E);
     let a1_rows = scratch_rows(&s, region::A1);
@@ -487,6 +488,33 @@ fn field_grid_density_queries_match_forward_and_softplus() {
             assert!((fd - cpu.mlp[idx]).abs() < 1e-6 * (1.0 + fd.abs()), "softplus W2[0,3]: fd {fd} vs {}", cpu.mlp[idx]);
         }
     }
+}
+
+#[test]
+fn field_grid_backward_skips_samples_without_gradient_exactly() {
+    // Runs of samples with all-zero output gradients (as past a ray's early
+    // termination) return early; the gradients must equal the reference's, and the
+    // rows they leave in scratch must not carry a previous chunk's values (NaN here).
+    let n = 200;
+    let cfg = GridConfig { backward_chunk: 64, hidden_width: 16, ..small_config() };
+    let mut s = setup(&cfg, n, 256, 73, false);
+    let mut w = LossWeights::random(n, 74, 1.0, 1.0, 1.0);
+    for i in (0..n).filter(|i| (i / 13) % 2 == 1 || i % 7 == 0) {
+        (w.a[i], w.b[i], w.c[i]) = (0.0, [0.0; 4], [0.0; 4]);
+    }
+    // Normal gradient alone, and density gradient alone, still count as gradient.
+    (w.a[26], w.b[26]) = (0.0, [0.0; 4]);
+    (w.b[27], w.c[27]) = ([0.0; 4], [0.0; 4]);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), true).unwrap();
+    let scratch = s.field.scratch.as_ref().unwrap();
+    scratch.buffer.write(&s.gpu, &vec![[f32::NAN; 4]; scratch.buffer.len()]);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), true).unwrap();
+    let m = s.field.reference(&s.gpu).unwrap();
+    let cpu = w.cpu_grads(&m, &s.samples, true);
+    assert_close("table grads with skipped samples", &to_f64(&s.field.table_grad.read(&s.gpu).unwrap()), &cpu.table, 3e-4, 3e-3);
+    assert_close("mlp grads with skipped samples", &to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
 }
 
 #[test]
