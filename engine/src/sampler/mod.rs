@@ -149,6 +149,10 @@ pub struct SamplerConfig {
     pub max_intervals: u32,
     /// Only cells some training camera sees can be occupied (world-space scenes;
     /// [`OccupancyGrid::restrict_to_seen`]): Instant-NGP's treatment of never-seen space.
+    /// Off by default: on scenes with content everywhere (walls) a test ray through
+    /// never-seen space then renders the background instead of the untrained field's
+    /// grey fog, which measured -0.3 dB on `occlusion` (3 views), +0.05 dB on `room`,
+    /// +0.02 dB on `creases` (README, "Sparse-view priors").
     pub seen_cells_only: bool,
 }
 
@@ -166,7 +170,7 @@ impl Default for SamplerConfig {
             steps_per_diagonal: DEFAULT_STEPS_PER_DIAGONAL,
             max_samples_per_ray: 1024,
             max_intervals: 16,
-            seen_cells_only: true,
+            seen_cells_only: false,
         }
     }
 }

@@ -255,3 +255,32 @@ impl Model {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::seen_by_training_cameras;
+    use crate::data::{LoadOptions, Scene};
+
+    #[test]
+    fn seen_cells_are_those_a_training_camera_images() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/occlusion");
+        let scene = Scene::load(dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+        let cell = |c: Vec3| (c - Vec3::splat(0.05), c + Vec3::splat(0.05));
+        // The point every camera looks at, and a point just in front of a camera.
+        let cam = &scene.train_views().next().unwrap().camera;
+        for p in [Vec3::new(0.0, 1.5, 0.95), cam.origin() + 0.5 * cam.forward()] {
+            let (lo, hi) = cell(p);
+            assert!(seen_by_training_cameras(&scene, lo, hi), "{p} is in view");
+        }
+        // Behind every camera (they all face +y), and far to the side of the frustums.
+        for p in [Vec3::new(0.0, -4.0, 1.2), Vec3::new(30.0, 1.5, 1.0)] {
+            let (lo, hi) = cell(p);
+            assert!(!seen_by_training_cameras(&scene, lo, hi), "{p} is out of view");
+        }
+        // A box straddling a camera's plane counts as seen (conservative).
+        let o = cam.origin();
+        assert!(seen_by_training_cameras(&scene, o - Vec3::splat(0.2), o + Vec3::splat(0.2)));
+    }
+}
