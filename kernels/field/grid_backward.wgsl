@@ -50,6 +50,35 @@ fn store(r: u32, dim4: u32, local: u32, v: ptr<function, Vec64>) {
     }
 }
 
+// Every per-sample row of the weight-gradient reduction, for sample `local` of the chunk.
+fn store_rows(
+    local: u32,
+    e: ptr<function, Vec64>,
+    d1: ptr<function, Vec64>,
+    a1: ptr<function, Vec64>,
+    dh: ptr<function, Vec64>,
+    dg: ptr<function, Vec64>,
+    xc: ptr<function, Vec64>,
+    dc1: ptr<function, Vec64>,
+    ac1: ptr<function, Vec64>,
+    dc2: ptr<function, Vec64>,
+    ac2: ptr<function, Vec64>,
+    dout: vec4<f32>,
+) {
+    let w4 = P.width4;
+    store(R_E, P.in4, local, e);
+    store(R_D1, w4, local, d1);
+    store(R_A1, w4, local, a1);
+    store(R_DH, 4u, local, dh);
+    store(R_DG, P.in4, local, dg);
+    store(R_XC, 8u, local, xc);
+    store(R_DC1, w4, local, dc1);
+    store(R_AC1, w4, local, ac1);
+    store(R_DC2, w4, local, dc2);
+    store(R_AC2, w4, local, ac2);
+    scratch[region(R_DO) + local] = dout;
+}
+
 @compute @workgroup_size(WG_SIZE)
 fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     P = P_buffer;
@@ -67,17 +96,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let d_n = select(vec3<f32>(0.0), d_normal[i].xyz, with_normals);
     if (all(d_out == vec4<f32>(0.0)) && all(d_n == vec3<f32>(0.0))) {
         var zero: Vec64;
-        store(R_E, P.in4, local, &zero);
-        store(R_D1, w4, local, &zero);
-        store(R_A1, w4, local, &zero);
-        store(R_DH, 4u, local, &zero);
-        store(R_DG, P.in4, local, &zero);
-        store(R_XC, 8u, local, &zero);
-        store(R_DC1, w4, local, &zero);
-        store(R_AC1, w4, local, &zero);
-        store(R_DC2, w4, local, &zero);
-        store(R_AC2, w4, local, &zero);
-        scratch[region(R_DO) + local] = vec4<f32>(0.0);
+        store_rows(local, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, vec4<f32>(0.0));
         return;
     }
     let smp = samples[i];
@@ -179,15 +198,5 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     }
 
     // Per-sample rows for the weight gradients.
-    store(R_E, P.in4, local, &e);
-    store(R_D1, w4, local, &d1);
-    store(R_A1, w4, local, &a1);
-    store(R_DH, 4u, local, &dh);
-    store(R_DG, P.in4, local, &dg);
-    store(R_XC, 8u, local, &xc);
-    store(R_DC1, w4, local, &dc1);
-    store(R_AC1, w4, local, &ac1);
-    store(R_DC2, w4, local, &dc2);
-    store(R_AC2, w4, local, &ac2);
-    scratch[region(R_DO) + local] = dout;
+    store_rows(local, &e, &d1, &a1, &dh, &dg, &xc, &dc1, &ac1, &dc2, &ac2, dout);
 }

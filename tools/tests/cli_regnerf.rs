@@ -4,41 +4,24 @@
 
 mod common;
 
-use common::{edgenerf, repo, text};
+use common::{read_log, text, train_creases_3v};
 
 #[test]
 fn regnerf_flags_train_and_log_the_depth_tv_term() {
     let out = tempfile::tempdir().unwrap();
-    let scene = repo().join("synthetic-scenes/small/creases");
-    let config = repo().join("tools/configs/sparse-small.toml");
     let dir = out.path().join("regnerf");
-    let o = edgenerf(&[
-        "train",
-        scene.to_str().unwrap(),
-        "--views",
-        "3",
-        "--config",
-        config.to_str().unwrap(),
-        "--out",
-        dir.to_str().unwrap(),
-        "--iters",
-        "3",
-        "--no-eval",
-        "--no-depth-reg",
-        "--no-normal-reg",
-        "--regnerf-depth-tv",
-        "--anneal-sample-space",
-        "--set",
-        "regnerf.patches_per_step=4",
-    ]);
+    let o = train_creases_3v(
+        &dir,
+        3,
+        &["--no-depth-reg", "--no-normal-reg", "--regnerf-depth-tv", "--anneal-sample-space", "--set", "regnerf.patches_per_step=4"],
+    );
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
-    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let (header, rows) = read_log(&dir);
     let at = header.iter().position(|h| *h == "elapsed_s").expect("elapsed_s column");
     assert_eq!(&header[at..at + 3], ["elapsed_s", "loss_tv", "lambda_tv"], "new columns appended");
-    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
     assert_eq!(rows.len(), 3);
+    let log = format!("{header:?}\n{rows:?}");
     let col = |k: &str| header.iter().position(|h| *h == k).unwrap();
     for (s, r) in rows.iter().enumerate() {
         // RegNeRF's decaying weight 400 -> 0.1 over 512 steps, divided by 3 (module doc).
@@ -54,9 +37,8 @@ fn regnerf_flags_train_and_log_the_depth_tv_term() {
 
     // Without the flags: no term, and the trailing columns read 0.
     let plain = out.path().join("plain");
-    let o = edgenerf(&["train", scene.to_str().unwrap(), "--views", "3", "--config", config.to_str().unwrap(), "--out", plain.to_str().unwrap(), "--iters", "1", "--no-eval"]);
+    let o = train_creases_3v(&plain, 1, &[]);
     assert!(o.status.success(), "{}", text(&o));
-    let log = std::fs::read_to_string(plain.join("log.csv")).unwrap();
-    let row: Vec<f64> = log.lines().nth(1).unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    let row = &read_log(&plain).1[0];
     assert_eq!([row[col("loss_tv")], row[col("lambda_tv")]], [0.0, 0.0]);
 }

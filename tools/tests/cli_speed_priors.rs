@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{command, edgenerf, repo, text};
+use common::{command, edgenerf, read_log, repo, text, train_creases_3v};
 
 #[test]
 fn speed_reports_stages_that_add_up_and_field_throughput() {
@@ -47,34 +47,13 @@ fn speed_outside_the_repository_says_what_to_pass() {
 #[test]
 fn priors_train_and_are_logged() {
     let out = tempfile::tempdir().unwrap();
-    let scene = repo().join("synthetic-scenes/small/creases");
-    let config = repo().join("tools/configs/sparse-small.toml");
     let dir = out.path().join("priors");
-    let o = edgenerf(&[
-        "train",
-        scene.to_str().unwrap(),
-        "--views",
-        "3",
-        "--config",
-        config.to_str().unwrap(),
-        "--out",
-        dir.to_str().unwrap(),
-        "--iters",
-        "3",
-        "--no-eval",
-        "--no-depth-reg",
-        "--no-normal-reg",
-        "--set",
-        "priors.distortion=0.01",
-        "--set",
-        "priors.occlusion=0.01",
-    ]);
-    let t = text(&o);
-    assert!(o.status.success(), "{t}");
-    let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
-    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let extra = ["--no-depth-reg", "--no-normal-reg", "--set", "priors.distortion=0.01", "--set", "priors.occlusion=0.01"];
+    let o = train_creases_3v(&dir, 3, &extra);
+    assert!(o.status.success(), "{}", text(&o));
+    let (header, rows) = read_log(&dir);
+    let log = format!("{header:?}\n{rows:?}");
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name} column"));
-    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
     assert_eq!(rows.len(), 3);
     for r in &rows {
         // The untrained field (density ~1 everywhere) spreads every ray's weight along it.
@@ -87,6 +66,7 @@ fn priors_train_and_are_logged() {
     let cfg = std::fs::read_to_string(dir.join("config.json")).unwrap();
     assert!(cfg.contains("\"distortion\": 0.01"), "{cfg}");
     // A bad weight is a config error naming the key.
+    let scene = repo().join("synthetic-scenes/small/creases");
     let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", out.path().join("bad").to_str().unwrap(), "--set", "priors.distortion=-1"]);
     assert!(!o.status.success() && text(&o).contains("priors.distortion"), "{}", text(&o));
 }

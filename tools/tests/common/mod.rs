@@ -26,3 +26,23 @@ pub fn repo() -> PathBuf {
 pub fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
+
+/// `edgenerf train` of the committed `creases` on 3 views with `sparse-small.toml`,
+/// `iters` steps, no test evaluation, into `dir`, with `extra` arguments after those.
+pub fn train_creases_3v(dir: &Path, iters: u32, extra: &[&str]) -> Output {
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let config = repo().join("tools/configs/sparse-small.toml");
+    let iters = iters.to_string();
+    let mut args = vec!["train", scene.to_str().unwrap(), "--views", "3", "--config", config.to_str().unwrap()];
+    args.extend_from_slice(&["--out", dir.to_str().unwrap(), "--iters", &iters, "--no-eval"]);
+    args.extend_from_slice(extra);
+    edgenerf(&args)
+}
+
+/// A run's `log.csv`: the header's column names and every row parsed as numbers.
+pub fn read_log(dir: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let log = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+    let header = log.lines().next().unwrap().split(',').map(str::to_string).collect();
+    let rows = log.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    (header, rows)
+}
