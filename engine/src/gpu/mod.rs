@@ -129,6 +129,12 @@ impl Gpu {
         let backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN);
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
+        // The same instance in every build profile: wgpu's default turns on Vulkan's
+        // validation layer (when installed) and SPIR-V debug info in debug builds, which
+        // made test builds slower and older validation layers reject the debug info.
+        // `WGPU_VALIDATION=1` / `WGPU_DEBUG=1` opt in (tools/tests/other_vulkan.rs runs the
+        // layer explicitly).
+        desc.flags = wgpu::InstanceFlags::empty().with_env();
         let instance = wgpu::Instance::new(desc);
         let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
         if adapters.is_empty() {
