@@ -251,11 +251,12 @@ impl OccupancyGrid {
         enc.submit();
         let mut bits = self.bits.read(gpu)?;
         if let Some(seen) = &self.seen {
-            let before = bits.clone();
+            let mut masked_any = false;
             for (b, m) in bits.iter_mut().zip(seen) {
+                masked_any |= *b & !m != 0;
                 *b &= m;
             }
-            if bits != before {
+            if masked_any {
                 self.bits.write(gpu, &bits);
             }
         }

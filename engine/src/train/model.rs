@@ -104,37 +104,39 @@ pub fn footprint(scene: &Scene, sampler: &crate::sampler::SamplerConfig) -> Foot
     Footprint { radius0, radius1, point_var: cell * cell / 12.0 }
 }
 
-/// Whether the box `lo..hi` (world space) can appear in a training image: for some
-/// training camera, its corners are not all behind the camera and the bounding
+/// The test of whether a box `lo..hi` (world space) can appear in a training image: for
+/// some training camera, its corners are not all behind the camera and the bounding
 /// rectangle of their projections overlaps the image (conservative: a box straddling
-/// the camera plane counts as seen). NDC scenes need no such test: their box is the
-/// reference frustum.
-pub fn seen_by_training_cameras(scene: &Scene, lo: glam::Vec3, hi: glam::Vec3) -> bool {
-    scene.train_views().any(|v| {
-        let cam = &v.camera;
-        let w2c = cam.w2c();
-        let (mut min, mut max) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
-        let mut behind = 0;
-        for k in 0..8 {
-            let corner = glam::Vec3::new(
-                if k & 1 == 0 { lo.x } else { hi.x },
-                if k & 2 == 0 { lo.y } else { hi.y },
-                if k & 4 == 0 { lo.z } else { hi.z },
-            );
-            match cam.project_with(&w2c, corner) {
-                Some((px, _)) => {
-                    min = min.min(px);
-                    max = max.max(px);
+/// the camera plane counts as seen). The cameras' world-to-camera matrices are
+/// computed once, here, for the millions of cells the test then visits. NDC scenes
+/// need no such test: their box is the reference frustum.
+pub fn seen_by_training_cameras(scene: &Scene) -> impl Fn(glam::Vec3, glam::Vec3) -> bool + Sync + '_ {
+    let cameras: Vec<_> = scene.train_views().map(|v| (&v.camera, v.camera.w2c())).collect();
+    move |lo, hi| {
+        cameras.iter().any(|(cam, w2c)| {
+            let (mut min, mut max) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
+            let mut behind = 0;
+            for k in 0..8 {
+                let corner = glam::Vec3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                );
+                match cam.project_with(w2c, corner) {
+                    Some((px, _)) => {
+                        min = min.min(px);
+                        max = max.max(px);
+                    }
+                    None => behind += 1,
                 }
-                None => behind += 1,
             }
-        }
-        match behind {
-            8 => false,
-            0 => max.x >= 0.0 && max.y >= 0.0 && min.x < cam.width as f32 && min.y < cam.height as f32,
-            _ => true,
-        }
-    })
+            match behind {
+                8 => false,
+                0 => max.x >= 0.0 && max.y >= 0.0 && min.x < cam.width as f32 && min.y < cam.height as f32,
+                _ => true,
+            }
+        })
+    }
 }
 
 /// The background a run renders over: the configured one, else the scene's, else black.
@@ -154,7 +156,7 @@ impl Model {
         };
         let mut grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
         if config.sampler.seen_cells_only && scene.ndc.is_none() {
-            grid.restrict_to_seen(gpu, |lo, hi| seen_by_training_cameras(scene, lo, hi))?;
+            grid.restrict_to_seen(gpu, seen_by_training_cameras(scene))?;
         }
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
@@ -267,20 +269,21 @@ mod tests {
     fn seen_cells_are_those_a_training_camera_images() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/occlusion");
         let scene = Scene::load(dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+        let seen = seen_by_training_cameras(&scene);
         let cell = |c: Vec3| (c - Vec3::splat(0.05), c + Vec3::splat(0.05));
         // The point every camera looks at, and a point just in front of a camera.
         let cam = &scene.train_views().next().unwrap().camera;
         for p in [Vec3::new(0.0, 1.5, 0.95), cam.origin() + 0.5 * cam.forward()] {
             let (lo, hi) = cell(p);
-            assert!(seen_by_training_cameras(&scene, lo, hi), "{p} is in view");
+            assert!(seen(lo, hi), "{p} is in view");
         }
         // Behind every camera (they all face +y), and far to the side of the frustums.
         for p in [Vec3::new(0.0, -4.0, 1.2), Vec3::new(30.0, 1.5, 1.0)] {
             let (lo, hi) = cell(p);
-            assert!(!seen_by_training_cameras(&scene, lo, hi), "{p} is out of view");
+            assert!(!seen(lo, hi), "{p} is out of view");
         }
         // A box straddling a camera's plane counts as seen (conservative).
         let o = cam.origin();
-        assert!(seen_by_training_cameras(&scene, o - Vec3::splat(0.2), o + Vec3::splat(0.2)));
+        assert!(seen(o - Vec3::splat(0.2), o + Vec3::splat(0.2)));
     }
 }
