@@ -119,25 +119,23 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     let bar = ProgressBar::new(total);
     bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
     bar.set_prefix(case.name.clone());
-    let mut step = |msg: &str| -> anyhow::Result<()> {
-        trainer.step().with_context(|| format!("{}: training step", case.name))?;
-        bar.set_message(msg.to_string());
+    let step = |trainer: &mut Trainer, phase: &str| -> anyhow::Result<()> {
+        trainer.step().with_context(|| format!("{}: {phase} step", case.name))?;
+        bar.set_message(phase.to_string());
         bar.inc(1);
         Ok(())
     };
     for _ in 0..args.warmup {
-        step("warm-up")?;
+        step(&mut trainer, "warm-up")?;
     }
     let start = Instant::now();
     for _ in 0..args.steps {
-        step("plain steps")?;
+        step(&mut trainer, "plain")?;
     }
     let plain_s = start.elapsed().as_secs_f64();
     trainer.set_profiling(true);
     for _ in 0..args.steps {
-        trainer.step().with_context(|| format!("{}: profiled step", case.name))?;
-        bar.set_message("profiled steps");
-        bar.inc(1);
+        step(&mut trainer, "profiled")?;
     }
     bar.finish_and_clear();
     let times: StageTimes = trainer.stage_times().cloned().expect("profiling is on");
