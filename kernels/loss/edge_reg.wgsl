@@ -13,6 +13,8 @@
 //             (the authors' mean over the 4M pixels and 3 components);
 //   plane target (either variant): L_z = sum_m max(E |z0 - z1 - z2 + z3| - tau1, 0) / M
 //             with E = e0 e1 e2 e3: the patch's second difference, zero for any plane.
+// z = depth * z_scale, or given termination z = depth / max(opacity, opacity_floor) *
+// z_scale, whose gradient also reaches the opacity (0 below the floor).
 // Patches with S = 0 (all edge) contribute nothing. Gradients are ADDED to d_rays
 // (the photometric loss wrote them first): d depth = lambda_z dL_z/dz * z_scale,
 // d normal = lambda_n dL_n/dn.
@@ -26,12 +28,18 @@ struct Params {
     official: u32,
     // 1: L_z pulls toward any plane (second difference) instead of the patch mean.
     depth_plane: u32,
-    _pad1: u32,
+    // 1: z is the depth given termination (divided by the ray's opacity).
+    depth_given_termination: u32,
     // Loss weights including the schedule's ramp; 0 switches a term off.
     lambda_depth: f32,
     lambda_normal: f32,
     tau_depth: f32,
     tau_normal: f32,
+    // Given termination, opacity is floored here (edge_reg.rs: OPACITY_FLOOR).
+    opacity_floor: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<storage, read> params: Params;
@@ -57,6 +65,9 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let inv_m = 1.0 / f32(params.n_patches);
     var e: array<f32, 4>;
     var z: array<f32, 4>;
+    // dz/d depth and dz/d opacity per ray.
+    var dz_ddepth: array<f32, 4>;
+    var dz_dopacity: array<f32, 4>;
     var n: array<vec3<f32>, 4>;
     var s = 0.0;
     var z_sum = 0.0;
@@ -66,7 +77,16 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         let px = pixel[r];
         let out = rays[r];
         e[i] = px.x;
-        z[i] = out.depth * px.y;
+        if (params.depth_given_termination != 0u) {
+            let o = max(out.opacity, params.opacity_floor);
+            z[i] = out.depth * px.y / o;
+            dz_ddepth[i] = px.y / o;
+            dz_dopacity[i] = select(0.0, -z[i] / o, out.opacity > params.opacity_floor);
+        } else {
+            z[i] = out.depth * px.y;
+            dz_ddepth[i] = px.y;
+            dz_dopacity[i] = 0.0;
+        }
         n[i] = out.normal;
         s += e[i];
         z_sum += e[i] * z[i];
@@ -136,7 +156,8 @@ fn edge_reg(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
             dn -= e[i] / s * g_n_sum;
         }
         var d = d_rays[r];
-        d.depth += params.lambda_depth * inv_m * dz * pixel[r].y;
+        d.depth += params.lambda_depth * inv_m * dz * dz_ddepth[i];
+        d.opacity += params.lambda_depth * inv_m * dz * dz_dopacity[i];
         d.normal += params.lambda_normal * norm_n * dn;
         d_rays[r] = d;
     }

@@ -16,6 +16,11 @@
 //! * NDC scenes (LLFF): `z_scale = 1`; `t` is the NDC parameter in `[0, 1]`, the
 //!   space the paper (and its code) regularizes for forward-facing scenes.
 //!
+//! With `reg.depth_estimate = "given_termination"` (the authors' code) the depth is
+//! divided by the ray's opacity first, `z = depth / max(opacity, OPACITY_FLOOR) *
+//! z_scale`: where the ray ends, whatever its opacity, so the loss cannot lower a
+//! patch's spread by thinning or thickening its rays.
+//!
 //! The rendered normal is `n = sum_i w_i n_i` (not renormalised, as the authors), in
 //! the field's space (NDC for LLFF). With `S = sum e_i`, `zbar = sum e_i z_i / S`,
 //! `nbar = sum e_i n_i / S` per patch:
@@ -52,7 +57,9 @@
 //! official: dL_z/dz_j = g_j / M,    dL_n/dn_j = G_j / (12 M)
 //! plane:    dL_z/dz_j = E_m sign(r_m) c_j / M where active, c = (1, -1, -1, 1)
 //! ```
-//! `d depth = lambda_z dL_z/dz * z_scale`, `d normal = lambda_n dL_n/dn`. The renderer's
+//! `d depth = lambda_z dL_z/dz * z_scale`, `d normal = lambda_n dL_n/dn`; given
+//! termination, `d depth = lambda_z dL_z/dz * z_scale / o` and `d opacity = -lambda_z
+//! dL_z/dz * z / o` with `o = max(opacity, OPACITY_FLOOR)` (0 below the floor). The renderer's
 //! backward takes these through the weights (to density) and, for the normals, to the
 //! per-sample analytic normals, whose backward in the field is second order.
 //!
@@ -91,6 +98,25 @@ pub enum DepthTarget {
     Plane,
 }
 
+/// Which depth of a ray `L_z` regularizes (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthEstimate {
+    /// `sum_i w_i t_i`, the paper's integral (not divided by opacity): the loss can
+    /// lower it by changing a ray's opacity as well as where the ray terminates.
+    #[default]
+    Expected,
+    /// Depth given termination, `sum_i w_i t_i / opacity` (the authors' code): only
+    /// where the ray ends counts. Opacity is floored at [`OPACITY_FLOOR`].
+    GivenTermination,
+}
+
+/// Below this opacity a ray is mostly background and its depth given termination an
+/// average over a trace of weights: the estimate divides by this floor instead, and
+/// the gradient into opacity is zero there (the authors clip the distance to the
+/// ray's range instead, with a gradient that grows as `1 / opacity`).
+pub const OPACITY_FLOOR: f32 = 0.1;
+
 /// The regularizers' settings in a run configuration (`[reg]`).
 ///
 /// Defaults are the paper's (section 4.1): `lambda2 = 0.1`, `tau1 = 1e-4`, `tau2 = 0`,
@@ -116,6 +142,9 @@ pub struct RegConfig {
     pub tau_normal: f32,
     /// What `L_z` pulls toward: the patch mean (the paper) or any plane.
     pub depth_target: DepthTarget,
+    /// Which depth `L_z` regularizes: the expected depth (the paper) or the depth
+    /// given termination (the authors' code).
+    pub depth_estimate: DepthEstimate,
     pub start_step: u64,
     pub warmup_steps: u64,
     /// `lambda1`, the weight of the photometric `L_c` (the paper: 1).
@@ -133,6 +162,7 @@ impl Default for RegConfig {
             tau_depth: 1e-4,
             tau_normal: 0.0,
             depth_target: DepthTarget::Mean,
+            depth_estimate: DepthEstimate::Expected,
             start_step: 0,
             warmup_steps: 0,
             lambda_color: 1.0,
@@ -172,6 +202,7 @@ impl RegConfig {
             tau_depth: self.tau_depth,
             tau_normal: self.tau_normal,
             depth_target: self.depth_target,
+            depth_estimate: self.depth_estimate,
         };
         (w.lambda_depth > 0.0 || w.lambda_normal > 0.0).then_some(w)
     }
@@ -202,6 +233,7 @@ pub struct EdgeRegWeights {
     pub tau_depth: f32,
     pub tau_normal: f32,
     pub depth_target: DepthTarget,
+    pub depth_estimate: DepthEstimate,
 }
 
 #[repr(C)]
@@ -210,11 +242,13 @@ struct Params {
     n_patches: u32,
     official: u32,
     depth_plane: u32,
-    _pad: u32,
+    depth_given_termination: u32,
     lambda_depth: f32,
     lambda_normal: f32,
     tau_depth: f32,
     tau_normal: f32,
+    opacity_floor: f32,
+    _pad: [u32; 3],
 }
 
 /// The unweighted loss values of one launch.
@@ -260,11 +294,13 @@ impl EdgeReg {
             n_patches,
             official: (w.variant == RegVariant::Official) as u32,
             depth_plane: (w.depth_target == DepthTarget::Plane) as u32,
-            _pad: 0,
+            depth_given_termination: (w.depth_estimate == DepthEstimate::GivenTermination) as u32,
             lambda_depth: w.lambda_depth,
             lambda_normal: w.lambda_normal,
             tau_depth: w.tau_depth,
             tau_normal: w.tau_normal,
+            opacity_floor: OPACITY_FLOOR,
+            _pad: [0; 3],
         });
         enc.dispatch_threads(
             &self.kernel,
@@ -288,7 +324,7 @@ impl EdgeReg {
 /// `f64` CPU reference of the losses and their gradients (tests; documentation of the
 /// kernel in plain Rust).
 pub mod reference {
-    use super::{DepthTarget, RegVariant};
+    use super::{DepthEstimate, DepthTarget, OPACITY_FLOOR, RegVariant};
 
     /// One ray of a patch as the losses see it.
     #[derive(Clone, Copy, Debug, Default)]
@@ -296,16 +332,48 @@ pub mod reference {
         pub e: f64,
         pub z_scale: f64,
         pub depth: f64,
+        pub opacity: f64,
         pub normal: [f64; 3],
     }
 
+    /// What the losses regularize: the depth estimate and the target.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Setting {
+        pub variant: RegVariant,
+        pub target: DepthTarget,
+        pub estimate: DepthEstimate,
+        pub tau_depth: f64,
+        pub tau_normal: f64,
+    }
+
+    /// The gradients of one ray's losses: `dL_z/d depth`, `dL_z/d opacity`, `dL_n/d normal`.
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct RayGrad {
+        pub depth: f64,
+        pub opacity: f64,
+        pub normal: [f64; 3],
+    }
+
+    /// The regularized depth `z` of a ray and its derivatives `(dz/d depth, dz/d opacity)`.
+    pub fn regularized_depth(r: &PatchRay, estimate: DepthEstimate) -> (f64, f64, f64) {
+        match estimate {
+            DepthEstimate::Expected => (r.depth * r.z_scale, r.z_scale, 0.0),
+            DepthEstimate::GivenTermination => {
+                let floor = OPACITY_FLOOR as f64;
+                let o = r.opacity.max(floor);
+                let z = r.depth * r.z_scale / o;
+                (z, r.z_scale / o, if r.opacity > floor { -z / o } else { 0.0 })
+            }
+        }
+    }
+
     /// Per patch `(zbar, nbar)` of `rays` (a multiple of 4); `None` for all-edge patches.
-    pub fn patch_means(rays: &[PatchRay]) -> Vec<Option<(f64, [f64; 3])>> {
+    pub fn patch_means(rays: &[PatchRay], estimate: DepthEstimate) -> Vec<Option<(f64, [f64; 3])>> {
         rays.chunks(4)
             .map(|patch| {
                 let s: f64 = patch.iter().map(|r| r.e).sum();
                 (s > 0.0).then(|| {
-                    let z_bar = patch.iter().map(|r| r.e * r.depth * r.z_scale).sum::<f64>() / s;
+                    let z_bar = patch.iter().map(|r| r.e * regularized_depth(r, estimate).0).sum::<f64>() / s;
                     let n_bar = [0, 1, 2].map(|c| patch.iter().map(|r| r.e * r.normal[c]).sum::<f64>() / s);
                     (z_bar, n_bar)
                 })
@@ -313,45 +381,31 @@ pub mod reference {
             .collect()
     }
 
-    /// `(L_z, L_n)` of `rays` (a multiple of 4) and per ray `(dL_z/d depth, dL_n/d normal)`.
-    #[allow(clippy::type_complexity)]
-    pub fn losses(
-        rays: &[PatchRay],
-        variant: RegVariant,
-        target: DepthTarget,
-        tau_depth: f64,
-        tau_normal: f64,
-    ) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
-        losses_given_means(rays, &patch_means(rays), variant, target, tau_depth, tau_normal)
+    /// `(L_z, L_n)` of `rays` (a multiple of 4) and their gradients per ray.
+    pub fn losses(rays: &[PatchRay], setting: &Setting) -> ((f64, f64), Vec<RayGrad>) {
+        losses_given_means(rays, &patch_means(rays, setting.estimate), setting)
     }
 
     /// [`losses`] with the patch means given: with the means of other rays held fixed,
     /// finite differences of this reproduce the stop-gradient of the official variant.
-    #[allow(clippy::type_complexity)]
-    pub fn losses_given_means(
-        rays: &[PatchRay],
-        means: &[Option<(f64, [f64; 3])>],
-        variant: RegVariant,
-        target: DepthTarget,
-        tau_depth: f64,
-        tau_normal: f64,
-    ) -> ((f64, f64), Vec<(f64, [f64; 3])>) {
+    pub fn losses_given_means(rays: &[PatchRay], means: &[Option<(f64, [f64; 3])>], setting: &Setting) -> ((f64, f64), Vec<RayGrad>) {
         assert_eq!(rays.len() % 4, 0);
+        let Setting { variant, target, estimate, tau_depth, tau_normal } = *setting;
         let m = (rays.len() / 4) as f64;
         let official = variant == RegVariant::Official;
         let norm_n = if official { 1.0 / (12.0 * m) } else { 1.0 / m };
         let (mut lz, mut ln) = (0.0, 0.0);
-        let mut grads = vec![(0.0, [0.0; 3]); rays.len()];
+        let mut grads = vec![RayGrad::default(); rays.len()];
         for (p, patch) in rays.chunks(4).enumerate() {
             let Some((z_bar, n_bar)) = means[p] else { continue };
             let s: f64 = patch.iter().map(|r| r.e).sum();
-            let z: Vec<f64> = patch.iter().map(|r| r.depth * r.z_scale).collect();
+            let z: Vec<(f64, f64, f64)> = patch.iter().map(|r| regularized_depth(r, estimate)).collect();
             let mut g = [0.0; 4];
             let mut gn = [[0.0; 3]; 4];
             let plane = target == DepthTarget::Plane;
             if plane {
                 let all_non_edge: f64 = patch.iter().map(|r| r.e).product();
-                let second_difference = z[0] - z[1] - z[2] + z[3];
+                let second_difference = z[0].0 - z[1].0 - z[2].0 + z[3].0;
                 let hz = all_non_edge * second_difference.abs() - tau_depth;
                 if hz > 0.0 {
                     lz += hz;
@@ -360,10 +414,10 @@ pub mod reference {
                 }
             }
             for (i, r) in patch.iter().enumerate() {
-                let hz = r.e * (z[i] - z_bar).abs() - tau_depth;
+                let hz = r.e * (z[i].0 - z_bar).abs() - tau_depth;
                 if !plane && hz > 0.0 {
                     lz += hz;
-                    g[i] = r.e * (z[i] - z_bar).signum();
+                    g[i] = r.e * (z[i].0 - z_bar).signum();
                 }
                 let dn: Vec<f64> = (0..3).map(|c| r.normal[c] - n_bar[c]).collect();
                 let sq = r.e * dn.iter().map(|d| d * d).sum::<f64>();
@@ -386,7 +440,8 @@ pub mod reference {
                         dn[c] -= r.e / s * gn_sum[c];
                     }
                 }
-                grads[4 * p + i] = (dz / m * r.z_scale, dn.map(|v| v * norm_n));
+                let (_, dz_ddepth, dz_dopacity) = z[i];
+                grads[4 * p + i] = RayGrad { depth: dz / m * dz_ddepth, opacity: dz / m * dz_dopacity, normal: dn.map(|v| v * norm_n) };
             }
         }
         ((lz / m, ln * norm_n), grads)

@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 
-use super::reference::{PatchRay, losses, losses_given_means, patch_means};
+use super::reference::{PatchRay, Setting, losses, losses_given_means, patch_means};
 use super::*;
 use crate::field::grid::tests::{AABB, randomize, small_config};
 use crate::field::grid::SplitMix64;
@@ -21,6 +21,8 @@ fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
             e: if (r.uniform(1.0) + 1.0) * 0.5 < 0.3 { 0.0 } else { 1.0 },
             z_scale: 0.8 + 0.1 * (r.uniform(1.0) + 1.0),
             depth: 2.0 + r.uniform(1.0) + 0.01 * i as f64,
+            // Some rays below the opacity floor of the depth given termination.
+            opacity: 0.05 + 0.45 * (r.uniform(1.0) + 1.0),
             normal: [r.uniform(1.0), r.uniform(1.0), r.uniform(1.0)],
         })
         .collect();
@@ -32,8 +34,18 @@ fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
     rays
 }
 
-fn weights(variant: RegVariant, depth_target: DepthTarget, tau_depth: f32) -> EdgeRegWeights {
-    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0, depth_target }
+fn weights(variant: RegVariant, depth_target: DepthTarget, depth_estimate: DepthEstimate, tau_depth: f32) -> EdgeRegWeights {
+    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0, depth_target, depth_estimate }
+}
+
+fn setting_of(w: &EdgeRegWeights) -> Setting {
+    Setting {
+        variant: w.variant,
+        target: w.depth_target,
+        estimate: w.depth_estimate,
+        tau_depth: w.tau_depth as f64,
+        tau_normal: w.tau_normal as f64,
+    }
 }
 
 #[test]
@@ -41,83 +53,110 @@ fn edge_reg_kernel_matches_reference() {
     let gpu = test_gpu(false);
     let n_patches = 37usize;
     let rays = random_patch_rays(n_patches, 3);
+    use DepthEstimate::{Expected, GivenTermination};
     use DepthTarget::{Mean, Plane};
     let cases = [
-        (RegVariant::Paper, Mean, 1e-4f32),
-        (RegVariant::Official, Mean, 1e-4),
-        (RegVariant::Paper, Mean, 0.3),
-        (RegVariant::Paper, Plane, 1e-4),
-        (RegVariant::Official, Plane, 0.3),
+        (RegVariant::Paper, Mean, Expected, 1e-4f32),
+        (RegVariant::Official, Mean, Expected, 1e-4),
+        (RegVariant::Paper, Mean, Expected, 0.3),
+        (RegVariant::Paper, Plane, Expected, 1e-4),
+        (RegVariant::Official, Plane, Expected, 0.3),
+        (RegVariant::Paper, Mean, GivenTermination, 1e-4),
+        (RegVariant::Official, Mean, GivenTermination, 1e-4),
+        (RegVariant::Paper, Plane, GivenTermination, 1e-4),
     ];
-    for (variant, target, tau) in cases {
-        let w = weights(variant, target, tau);
+    for (variant, target, estimate, tau) in cases {
+        let w = weights(variant, target, estimate, tau);
         let reg = EdgeReg::new(&gpu, n_patches as u32).unwrap();
         reg.pixel.write(&gpu, &rays.iter().map(|r| [r.e as f32, r.z_scale as f32]).collect::<Vec<_>>());
         let outs: Vec<RayOutput> = rays
             .iter()
-            .map(|r| RayOutput { depth: r.depth as f32, normal: r.normal.map(|v| v as f32), ..Default::default() })
+            .map(|r| RayOutput {
+                depth: r.depth as f32,
+                opacity: r.opacity as f32,
+                normal: r.normal.map(|v| v as f32),
+                ..Default::default()
+            })
             .collect();
         let rays_buf = GpuBuffer::from_slice(&gpu, "rays", &outs).unwrap();
         // Pre-filled gradients: the kernel adds.
         let prior: Vec<RayOutput> =
-            (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, normal: [i as f32 * 0.01, 0.0, -1.0], opacity: 0.0 }).collect();
+            (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, normal: [i as f32 * 0.01, 0.0, -1.0], opacity: 0.125 }).collect();
         let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
         let mut enc = gpu.encoder();
         reg.record(&mut enc, &rays_buf, &d, n_patches as u32, &w);
         enc.submit();
         let got = reg.losses(&gpu, n_patches as u32).unwrap();
-        let ((lz, ln), grads) = losses(&rays, variant, target, tau as f64, 0.0);
-        assert!((got.depth as f64 - lz).abs() <= 1e-5 * lz.abs().max(1e-3), "{variant:?} L_z {} vs {lz}", got.depth);
-        assert!((got.normal as f64 - ln).abs() <= 1e-5 * ln.abs().max(1e-3), "{variant:?} L_n {} vs {ln}", got.normal);
+        let ((lz, ln), grads) = losses(&rays, &setting_of(&w));
+        let case = format!("{variant:?} {target:?} {estimate:?} tau {tau}");
+        assert!((got.depth as f64 - lz).abs() <= 1e-5 * lz.abs().max(1e-3), "{case}: L_z {} vs {lz}", got.depth);
+        assert!((got.normal as f64 - ln).abs() <= 1e-5 * ln.abs().max(1e-3), "{case}: L_n {} vs {ln}", got.normal);
         let d = d.read(&gpu).unwrap();
-        for (i, ((gz, gn), p)) in grads.iter().zip(&prior).enumerate() {
-            let want_z = p.depth as f64 + w.lambda_depth as f64 * gz;
-            assert!((d[i].depth as f64 - want_z).abs() < 1e-5, "{variant:?} ray {i}: d depth {} vs {want_z}", d[i].depth);
+        for (i, (g, p)) in grads.iter().zip(&prior).enumerate() {
+            let want_z = p.depth as f64 + w.lambda_depth as f64 * g.depth;
+            assert!((d[i].depth as f64 - want_z).abs() < 1e-5, "{case} ray {i}: d depth {} vs {want_z}", d[i].depth);
+            let want_o = p.opacity as f64 + w.lambda_depth as f64 * g.opacity;
+            assert!((d[i].opacity as f64 - want_o).abs() < 1e-5, "{case} ray {i}: d opacity {} vs {want_o}", d[i].opacity);
             for c in 0..3 {
-                let want = p.normal[c] as f64 + w.lambda_normal as f64 * gn[c];
-                assert!((d[i].normal[c] as f64 - want).abs() < 1e-5, "{variant:?} ray {i} d normal[{c}]");
+                let want = p.normal[c] as f64 + w.lambda_normal as f64 * g.normal[c];
+                assert!((d[i].normal[c] as f64 - want).abs() < 1e-5, "{case} ray {i} d normal[{c}]");
             }
             assert_eq!(d[i].rgb, p.rgb, "colour gradients untouched");
         }
         // The all-edge patch has no loss and no gradient.
-        assert!((4..8).all(|i| d[i].depth == prior[i].depth));
+        assert!((4..8).all(|i| d[i].depth == prior[i].depth && d[i].opacity == prior[i].opacity));
+        // The expected depth leaves opacity alone; given termination reaches it.
+        let opacity_touched = d.iter().zip(&prior).any(|(a, b)| a.opacity != b.opacity);
+        assert_eq!(opacity_touched, estimate == GivenTermination, "{case}");
     }
 }
 
 #[test]
 fn edge_reg_reference_matches_finite_differences() {
     let rays = random_patch_rays(9, 11);
-    let cases = [RegVariant::Paper, RegVariant::Official].into_iter().flat_map(|v| [(v, DepthTarget::Mean), (v, DepthTarget::Plane)]);
-    for (variant, target) in cases {
-        // The official variant's means are constants of the backward pass: hold them.
-        let frozen = patch_means(&rays);
-        let total = |rays: &[PatchRay]| {
-            let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(rays) };
-            let ((lz, ln), _) = losses_given_means(rays, &means, variant, target, 1e-4, 0.0);
-            lz + 2.0 * ln
-        };
-        let (_, grads) = losses(&rays, variant, target, 1e-4, 0.0);
-        let h = 1e-6;
-        for i in 0..rays.len() {
-            let mut p = rays.clone();
-            p[i].depth += h;
-            let mut m = rays.clone();
-            m[i].depth -= h;
-            let fd = (total(&p) - total(&m)) / (2.0 * h);
-            assert!((fd - grads[i].0).abs() < 1e-6, "{variant:?} ray {i} depth: fd {fd} vs {}", grads[i].0);
-            for c in 0..3 {
-                let mut p = rays.clone();
-                p[i].normal[c] += h;
-                let mut m = rays.clone();
-                m[i].normal[c] -= h;
-                let fd = (total(&p) - total(&m)) / (2.0 * h);
-                assert!((fd - 2.0 * grads[i].1[c]).abs() < 1e-6, "{variant:?} ray {i} normal {c}: fd {fd} vs {}", 2.0 * grads[i].1[c]);
+    let variants = [RegVariant::Paper, RegVariant::Official];
+    let targets = [DepthTarget::Mean, DepthTarget::Plane];
+    let estimates = [DepthEstimate::Expected, DepthEstimate::GivenTermination];
+    for variant in variants {
+        for target in targets {
+            for estimate in estimates {
+                let setting = Setting { variant, target, estimate, tau_depth: 1e-4, tau_normal: 0.0 };
+                check_reference_against_finite_differences(&rays, &setting);
             }
         }
-        // Stop-gradient changes the answer (the paper variant's mean terms matter).
-        if variant == RegVariant::Official && target == DepthTarget::Mean {
-            let (_, paper) = losses(&rays, RegVariant::Paper, target, 1e-4, 0.0);
-            assert!(grads.iter().zip(&paper).any(|(a, b)| (a.0 - b.0).abs() > 1e-3));
+    }
+    // Stop-gradient changes the answer (the paper variant's mean terms matter).
+    let official = Setting { variant: RegVariant::Official, target: DepthTarget::Mean, estimate: DepthEstimate::Expected, tau_depth: 1e-4, tau_normal: 0.0 };
+    let (_, a) = losses(&rays, &official);
+    let (_, b) = losses(&rays, &Setting { variant: RegVariant::Paper, ..official });
+    assert!(a.iter().zip(&b).any(|(a, b)| (a.depth - b.depth).abs() > 1e-3));
+}
+
+fn check_reference_against_finite_differences(rays: &[PatchRay], setting: &Setting) {
+    // The official variant's means are constants of the backward pass: hold them.
+    let frozen = patch_means(rays, setting.estimate);
+    let total = |rays: &[PatchRay]| {
+        let means = if setting.variant == RegVariant::Official { frozen.clone() } else { patch_means(rays, setting.estimate) };
+        let ((lz, ln), _) = losses_given_means(rays, &means, setting);
+        lz + 2.0 * ln
+    };
+    let (_, grads) = losses(rays, setting);
+    let h = 1e-6;
+    let fd = |i: usize, perturb: &dyn Fn(&mut PatchRay, f64)| {
+        let (mut p, mut m) = (rays.to_vec(), rays.to_vec());
+        perturb(&mut p[i], h);
+        perturb(&mut m[i], -h);
+        (total(&p) - total(&m)) / (2.0 * h)
+    };
+    for (i, g) in grads.iter().enumerate() {
+        let d = fd(i, &|r, h| r.depth += h);
+        assert!((d - g.depth).abs() < 1e-6, "{setting:?} ray {i} depth: fd {d} vs {}", g.depth);
+        // Rays within h of the opacity floor would straddle its kink: none are.
+        let o = fd(i, &|r, h| r.opacity += h);
+        assert!((o - g.opacity).abs() < 1e-6, "{setting:?} ray {i} opacity: fd {o} vs {}", g.opacity);
+        for c in 0..3 {
+            let n = fd(i, &|r, h| r.normal[c] += h);
+            assert!((n - 2.0 * g.normal[c]).abs() < 1e-6, "{setting:?} ray {i} normal {c}: fd {n} vs {}", 2.0 * g.normal[c]);
         }
     }
 }
@@ -144,7 +183,7 @@ fn patch_samples(n_patches: usize, seed: u64) -> (Vec<SampleRange>, Vec<GpuSampl
     (ranges, samples)
 }
 
-fn end_to_end(variant: RegVariant, depth_target: DepthTarget) {
+fn end_to_end(variant: RegVariant, depth_target: DepthTarget, depth_estimate: DepthEstimate) {
     let gpu = test_gpu(false);
     let cfg = small_config();
     let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
@@ -158,7 +197,8 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget) {
     batch.samples.write(&gpu, &samples);
     batch.count.write(&gpu, &[capacity, capacity]);
     let pixel: Vec<[f32; 2]> = (0..n_rays).map(|i| [if i % 7 == 3 { 0.0 } else { 1.0 }, 0.9 + 0.01 * i as f32]).collect();
-    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0, depth_target };
+    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0, depth_target, depth_estimate };
+    let setting = setting_of(&w);
 
     // GPU: forward with normals, composite, losses, backward to the parameters.
     let out = FieldOutputs::new(&gpu, capacity).unwrap();
@@ -194,15 +234,15 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget) {
                 })
                 .collect();
             let ray = render_ref::composite(&ref_samples, [0.0; 3], 0.0);
-            rays.push(PatchRay { e: pixel[r][0] as f64, z_scale: pixel[r][1] as f64, depth: ray.depth, normal: ray.normal });
+            rays.push(PatchRay { e: pixel[r][0] as f64, z_scale: pixel[r][1] as f64, depth: ray.depth, opacity: ray.opacity, normal: ray.normal });
         }
         rays
     };
-    let frozen = patch_means(&patch_rays_of(&model));
+    let frozen = patch_means(&patch_rays_of(&model), depth_estimate);
     let loss_of = |m: &crate::field::grid::reference::GridModel| -> (f64, f64) {
         let rays = patch_rays_of(m);
-        let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(&rays) };
-        losses_given_means(&rays, &means, variant, depth_target, w.tau_depth as f64, w.tau_normal as f64).0
+        let means = if variant == RegVariant::Official { frozen.clone() } else { patch_means(&rays, depth_estimate) };
+        losses_given_means(&rays, &means, &setting).0
     };
     let (lz, ln) = loss_of(&model);
     assert!(lz > 1e-3 && ln > 1e-3, "the test scene must exercise both losses: {lz} {ln}");
@@ -238,34 +278,40 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget) {
 
 #[test]
 fn edge_reg_end_to_end_paper_matches_finite_differences() {
-    end_to_end(RegVariant::Paper, DepthTarget::Mean);
+    end_to_end(RegVariant::Paper, DepthTarget::Mean, DepthEstimate::Expected);
 }
 
 #[test]
 fn edge_reg_end_to_end_plane_matches_finite_differences() {
-    end_to_end(RegVariant::Paper, DepthTarget::Plane);
+    end_to_end(RegVariant::Paper, DepthTarget::Plane, DepthEstimate::Expected);
 }
 
 #[test]
 fn edge_reg_end_to_end_official_matches_finite_differences() {
-    end_to_end(RegVariant::Official, DepthTarget::Mean);
+    end_to_end(RegVariant::Official, DepthTarget::Mean, DepthEstimate::Expected);
+}
+
+#[test]
+fn edge_reg_end_to_end_given_termination_matches_finite_differences() {
+    end_to_end(RegVariant::Paper, DepthTarget::Mean, DepthEstimate::GivenTermination);
 }
 
 #[test]
 fn plane_target_is_zero_on_any_plane_and_mean_target_is_not() {
     // Depths affine in the pixel coordinates (a slanted plane) over an all non-edge patch.
     let rays: Vec<PatchRay> = (0..4)
-        .map(|i| PatchRay { e: 1.0, z_scale: 1.0, depth: 2.0 + 0.03 * (i % 2) as f64 - 0.05 * (i / 2) as f64, normal: [0.0; 3] })
+        .map(|i| PatchRay { e: 1.0, z_scale: 1.0, depth: 2.0 + 0.03 * (i % 2) as f64 - 0.05 * (i / 2) as f64, opacity: 1.0, normal: [0.0; 3] })
         .collect();
-    let ((plane, _), grads) = losses(&rays, RegVariant::Paper, DepthTarget::Plane, 1e-4, 0.0);
-    assert!(plane == 0.0 && grads.iter().all(|g| g.0 == 0.0), "plane: {plane}");
-    let ((mean, _), _) = losses(&rays, RegVariant::Paper, DepthTarget::Mean, 1e-4, 0.0);
+    let plane_setting = Setting { variant: RegVariant::Paper, target: DepthTarget::Plane, estimate: DepthEstimate::Expected, tau_depth: 1e-4, tau_normal: 0.0 };
+    let ((plane, _), grads) = losses(&rays, &plane_setting);
+    assert!(plane == 0.0 && grads.iter().all(|g| g.depth == 0.0), "plane: {plane}");
+    let ((mean, _), _) = losses(&rays, &Setting { target: DepthTarget::Mean, ..plane_setting });
     assert!(mean > 0.05, "the paper's target pulls the plane fronto-parallel: {mean}");
     // One edge pixel: three points always lie on a plane, so nothing to pull.
     let mut edge = rays.clone();
     edge[0].depth += 1.0;
     edge[1].e = 0.0;
-    assert_eq!(losses(&edge, RegVariant::Paper, DepthTarget::Plane, 1e-4, 0.0).0.0, 0.0);
+    assert_eq!(losses(&edge, &plane_setting).0.0, 0.0);
 }
 
 #[test]
