@@ -2,10 +2,23 @@
 //! regularization, on a hash-grid engine that runs in WGSL compute shaders through
 //! wgpu/Vulkan (an NVIDIA GPU, or Mesa lavapipe on the CPU).
 //!
-//! Rooms (see `ARCHITECTURE.md` in the repository's docs):
-//! * [`gpu`]: adapter selection, buffers, kernels and dispatch;
-//! * [`data`]: scenes, cameras, dataset formats and splits;
-//! * [`edges`]: edge masks of the training images (Canny, external maps, dilation).
+//! The crate is divided into rooms, its top-level modules; `docs/ARCHITECTURE.md` in the
+//! repository describes what each owns, the data flow of a training step, and which
+//! room may use which (checked by `tests/room_rules.rs`):
+//! * [`gpu`]: the wgpu/Vulkan context: adapter selection, buffers, kernels and dispatch;
+//! * [`data`]: scenes, cameras and rays, dataset formats (Blender, LLFF, DTU) and splits;
+//! * [`edges`]: edge masks of the training images (Canny, external maps, dilation);
+//! * [`samples`]: the ray, sample and per-ray output layouts shared by the GPU rooms;
+//! * [`field`]: the `Field` trait and its hash-grid and MLP backends, with analytic
+//!   normals and the exact backward pass;
+//! * [`sampler`]: the occupancy grid, its BVH and sample placement along rays;
+//! * [`render`]: volume rendering forward and backward, and the sparse-view priors;
+//! * [`loss`]: photometric, edge-guided depth/normal and RegNeRF depth-TV losses;
+//! * [`optim`]: Adam, gradient norm and clipping on the GPU, learning-rate schedules;
+//! * [`train`]: configuration, the model, the training step, checkpoints, evaluation;
+//! * [`metrics`]: image and geometry metrics (PSNR, SSIM, LPIPS, depth/normal errors,
+//!   depth boundary error);
+//! * [`viz`]: depth, normal and opacity images for people.
 
 pub mod data;
 pub mod edges;

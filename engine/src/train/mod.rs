@@ -1,15 +1,19 @@
 //! The train room: the optimisation loop that ties the rooms together, checkpoints,
 //! the run configuration, and rendering with a trained model.
 //!
-//! One step ([`Trainer::step`]):
+//! One step ([`Trainer::step`]: draw a batch, then [`Trainer::step_on`]; the repository's
+//! `docs/ARCHITECTURE.md` shows the same flow room by room):
 //! ```text
-//! occupancy grid update (every 16 steps: field densities at grid query points)
-//! random 2x2 patches of one training image (or random pixels) -> rays (host)
+//! random 2x2 patches of `train.images_per_step` training images (1 by default), or
+//!   random pixels -> rays (host)
+//! occupancy grid update (every `sampler.update_interval` steps: field densities at
+//!   grid query points)
 //!   [+ RegNeRF: 8x8 patches from random poses appended; all ranges annealed]
 //!   -> sampler (occupancy grid + BVH) -> samples
 //! field forward (+ analytic normals when L_n is on) -> composite
 //!   -> photometric loss L_c (+ edge-guided L_z, L_n on the patches, + depth TV on the
-//!      random-pose patches) -> composite backward
+//!      random-pose patches; rays cut by the sample capacity dropped) -> composite
+//!      backward (+ the distortion and occlusion priors when on)
 //! zero grads -> field backward (second order through the normals when L_n is on)
 //!   -> grad norm / NaN check / clip -> Adam (GPU)
 //! ```
@@ -19,8 +23,11 @@
 //! weight, so one forward and one backward pass serve every term; the edge masks of the training views are given by the
 //! caller (e.g. from a cache next to the run) or computed once, at the first step that
 //! draws patches, so rendering a checkpoint never computes them.
-//! The host reads back one small set of numbers per step (the batch's squared errors,
-//! the gradient statistics and the sample count) for logging and the NaN guard.
+//! The host waits for the GPU at up to seven small readbacks per step, for logging and
+//! the NaN guard: after the losses, the rays dropped for the capacity, the batch's
+//! squared errors and, when their terms are on, the edge-guided losses, the depth TV
+//! and the priors' per-ray terms; after Adam, the gradient statistics and the sample
+//! count. An occupancy grid update reads its bitfield and density sum as well.
 //!
 //! Invariants:
 //! * A step whose loss or gradients are not finite changes no parameter (the loss is
@@ -29,8 +36,11 @@
 //!   the caller stops and keeps the last good checkpoint.
 //! * Runs are deterministic given the config (seeded pixel choice, jitter, grid
 //!   cells), up to the order of float atomic adds on the GPU.
-//! * Checkpoints hold everything needed to resume: parameters, Adam state, step and
-//!   config; the occupancy grid is rebuilt from the field on load.
+//! * Checkpoints hold everything needed to resume: parameters, Adam state, step,
+//!   config and the occupancy grid's densities, which [`Trainer::resume`] restores (so
+//!   a resumed or rendered run skips exactly the space training skipped); only a
+//!   checkpoint without them (uniform sampling, older files) has its grid rebuilt from
+//!   the field.
 
 pub mod checkpoint;
 pub mod config;
