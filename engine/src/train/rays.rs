@@ -69,11 +69,6 @@ pub fn to_gpu_ray(scene: &Scene, ray: &Ray) -> GpuRay {
     GpuRay { origin: ray.origin.to_array(), t_min, dir: ray.dir.to_array(), t_max }
 }
 
-/// All rays of one view, row-major.
-pub fn view_rays(scene: &Scene, view: usize) -> Vec<GpuRay> {
-    scene.image_rays(view).iter().map(|r| to_gpu_ray(scene, r)).collect()
-}
-
 /// A step's training rays and their targets.
 #[derive(Clone, Default)]
 pub struct PixelBatch {
