@@ -1,9 +1,19 @@
 //! NumPy `.npy` and `.npz` files: a small reader (plus a writer for tests and tools).
 //!
-//! Supported: format versions 1, 2 and 3; C-order arrays of little-endian (or native on
-//! little-endian hosts) `f4`, `f8`, `i4`, `i8`; `.npz` archives (stored or deflated)
-//! through the `zip` crate. Everything else (Fortran order, big-endian data, other
-//! dtypes, truncated data) is a clear error, never a guess.
+//! Supported: format versions 1, 2 and 3; every numeric dtype NumPy writes for real
+//! numbers (`b1`, `i1`/`u1`, `i2`/`u2`, `i4`/`u4`, `i8`/`u8`, `f2`, `f4`, `f8`) in either
+//! byte order; C and Fortran order (Fortran arrays are transposed to C order on load);
+//! `.npz` archives (stored or deflated) through the `zip` crate. Everything else
+//! (complex, strings, records, objects/pickles, truncated data, trailing bytes) is a
+//! clear error, never a guess.
+//!
+//! Why hand-written: the crates measured (2026-11) fail on exactly the hostile headers
+//! this reader must refuse: `npyz` 0.9.1 panics ("attempt to multiply with overflow",
+//! in `NpyFile::new`) on a header whose shape product overflows `u64` in debug builds
+//! and wraps it to an empty array in release; `ndarray-npy` 0.9 aborts the process
+//! allocating 8 TiB for a header that claims 2^40 `f8` values over a 64-byte body.
+//! Here every size is computed with checked arithmetic and compared with the bytes
+//! actually present before anything is allocated (see `tests/fuzz_loaders.rs`).
 //!
 //! Invariant: an [`NpyArray`] holds exactly `shape.iter().product()` values, converted
 //! to `f64` in C (row-major) order; the original dtype is kept in [`NpyArray::dtype`].
@@ -16,20 +26,77 @@ use super::DataError;
 
 const MAGIC: &[u8] = b"\x93NUMPY";
 
-/// Element type of an array as stored in the file.
+/// Largest `.npy` entry of an `.npz` archive read into memory (camera archives and test
+/// fixtures are kilobytes to megabytes; a larger entry is a corrupt or hostile file).
+pub const MAX_NPZ_ENTRY_BYTES: u64 = 1 << 30;
+
+/// Element type of an array as stored in the file (its byte order is undone on load).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DType {
+    Bool,
+    I1,
+    U1,
+    I2,
+    U2,
+    I4,
+    U4,
+    I8,
+    U8,
+    F2,
     F4,
     F8,
-    I4,
-    I8,
 }
 
 impl DType {
-    fn size(self) -> usize {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
         match self {
-            DType::F4 | DType::I4 => 4,
-            DType::F8 | DType::I8 => 8,
+            DType::Bool | DType::I1 | DType::U1 => 1,
+            DType::I2 | DType::U2 | DType::F2 => 2,
+            DType::I4 | DType::U4 | DType::F4 => 4,
+            DType::I8 | DType::U8 | DType::F8 => 8,
+        }
+    }
+
+    /// NumPy's type code without byte order (`f8`, `u1`, ...).
+    fn from_code(code: &str) -> Option<DType> {
+        Some(match code {
+            "b1" | "?" => DType::Bool,
+            "i1" => DType::I1,
+            "u1" => DType::U1,
+            "i2" => DType::I2,
+            "u2" => DType::U2,
+            "i4" => DType::I4,
+            "u4" => DType::U4,
+            "i8" => DType::I8,
+            "u8" => DType::U8,
+            "f2" => DType::F2,
+            "f4" => DType::F4,
+            "f8" => DType::F8,
+            _ => return None,
+        })
+    }
+
+    /// One element from exactly `self.size()` little-endian bytes.
+    fn decode_le(self, b: &[u8]) -> f64 {
+        let a = |n: usize| -> [u8; 8] {
+            let mut out = [0u8; 8];
+            out[..n].copy_from_slice(&b[..n]);
+            out
+        };
+        match self {
+            DType::Bool => f64::from(u8::from(b[0] != 0)),
+            DType::I1 => f64::from(b[0] as i8),
+            DType::U1 => f64::from(b[0]),
+            DType::I2 => f64::from(i16::from_le_bytes([b[0], b[1]])),
+            DType::U2 => f64::from(u16::from_le_bytes([b[0], b[1]])),
+            DType::F2 => f64::from(half::f16::from_le_bytes([b[0], b[1]])),
+            DType::I4 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            DType::U4 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            DType::F4 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            DType::I8 => i64::from_le_bytes(a(8)) as f64,
+            DType::U8 => u64::from_le_bytes(a(8)) as f64,
+            DType::F8 => f64::from_le_bytes(a(8)),
         }
     }
 }
@@ -107,7 +174,7 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
         return Err("not a .npy file (missing the \\x93NUMPY magic)".into());
     }
     let major = bytes[6];
-    let (header_len, header_start) = match major {
+    let (header_len, header_start): (usize, usize) = match major {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
         2 | 3 => {
             let b = bytes.get(8..12).ok_or("truncated .npy header")?;
@@ -119,82 +186,98 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
             ));
         }
     };
-    let header = bytes
-        .get(header_start..header_start + header_len)
-        .ok_or("truncated .npy header")?;
+    let header_end = header_start
+        .checked_add(header_len)
+        .filter(|&end| end <= bytes.len())
+        .ok_or_else(|| format!("truncated .npy header (it claims {header_len} bytes, the file holds {})", bytes.len()))?;
+    let header = &bytes[header_start..header_end];
     let header = std::str::from_utf8(header).map_err(|_| "the .npy header is not text")?;
-    let (dtype, fortran, shape) = parse_header(header)?;
-    if fortran {
-        return Err(
-            "Fortran-order arrays are not supported; save np.ascontiguousarray(a) instead".into(),
-        );
-    }
+    let Header { dtype, big_endian, fortran, shape } = parse_header(header)?;
     // A header can claim any shape: the byte count must not overflow (it wrapped and
     // passed the size check before, then failed allocating with "capacity overflow").
-    let body = &bytes[header_start + header_len..];
-    let expected = shape.iter().try_fold(dtype.size(), |n, &d| n.checked_mul(d)).ok_or_else(|| {
+    let body = &bytes[header_end..];
+    let count = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+    let expected = count.and_then(|n| n.checked_mul(dtype.size())).ok_or_else(|| {
         format!("header claims shape {}, more bytes than memory can hold (corrupt file)", shape_string(&shape))
     })?;
     if body.len() != expected {
+        let what = if body.len() < expected { "truncated or corrupt file" } else { "trailing bytes: corrupt file" };
         return Err(format!(
-            "data section holds {} bytes but shape {} of {dtype:?} needs {expected} (truncated or corrupt file)",
+            "data section holds {} bytes but shape {} of {dtype:?} needs {expected} ({what})",
             body.len(),
             shape_string(&shape)
         ));
     }
-    let data = match dtype {
-        DType::F4 => body
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
-            .collect(),
-        DType::I4 => body
-            .chunks_exact(4)
-            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
-            .collect(),
-        DType::F8 => body
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().expect("chunk of 8")))
-            .collect(),
-        DType::I8 => body
-            .chunks_exact(8)
-            .map(|c| i64::from_le_bytes(c.try_into().expect("chunk of 8")) as f64)
-            .collect(),
-    };
+    let size = dtype.size();
+    let mut element = [0u8; 8];
+    let mut data: Vec<f64> = body
+        .chunks_exact(size)
+        .map(|c| {
+            element[..size].copy_from_slice(c);
+            if big_endian {
+                element[..size].reverse();
+            }
+            dtype.decode_le(&element[..size])
+        })
+        .collect();
+    if fortran && shape.len() > 1 {
+        data = fortran_to_c(&data, &shape);
+    }
     Ok(NpyArray { shape, dtype, data })
 }
 
+/// Reorders the values of a Fortran-order (first index fastest) array into C order.
+fn fortran_to_c(data: &[f64], shape: &[usize]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(data.len());
+    // Walk C order with a multi-index; the Fortran offset is sum(i_k * prod(shape[..k])).
+    let mut strides = Vec::with_capacity(shape.len());
+    let mut s = 1usize;
+    for &d in shape {
+        strides.push(s);
+        s *= d;
+    }
+    let mut index = vec![0usize; shape.len()];
+    for _ in 0..data.len() {
+        out.push(data[index.iter().zip(&strides).map(|(i, s)| i * s).sum::<usize>()]);
+        for k in (0..shape.len()).rev() {
+            index[k] += 1;
+            if index[k] < shape[k] {
+                break;
+            }
+            index[k] = 0;
+        }
+    }
+    out
+}
+
+/// What the header dict says.
+struct Header {
+    dtype: DType,
+    big_endian: bool,
+    fortran: bool,
+    shape: Vec<usize>,
+}
+
 /// Parses the Python dict literal of the header: `descr`, `fortran_order`, `shape`.
-fn parse_header(header: &str) -> Result<(DType, bool, Vec<usize>), String> {
+fn parse_header(header: &str) -> Result<Header, String> {
     let descr = dict_value(header, "descr")?;
     let descr = descr
         .strip_prefix('\'')
         .and_then(|d| d.split('\'').next())
         .or_else(|| descr.strip_prefix('"').and_then(|d| d.split('"').next()))
-        .ok_or_else(|| format!("cannot read 'descr' in header {header:?}"))?;
+        .ok_or_else(|| format!("cannot read 'descr' in header {header:?} (structured arrays are not supported)"))?;
     let unsupported = || {
         format!(
-            "dtype '{descr}' is not supported (expected little-endian float32, float64, int32 or \
-             int64); convert with a.astype('<f8')"
+            "dtype '{descr}' is not supported (expected a number: bool, int, uint or float of 1 to 8 bytes); \
+             convert with a.astype('<f8')"
         )
     };
-    let (order, code) = descr.split_at_checked(1).ok_or_else(unsupported)?;
-    match order {
-        "<" | "|" => {}
-        "=" if cfg!(target_endian = "little") => {}
-        ">" => {
-            return Err(format!(
-                "big-endian data ('{descr}') is not supported; convert with a.astype('<{code}')"
-            ));
-        }
-        _ => return Err(unsupported()),
-    }
-    let dtype = match code {
-        "f4" => DType::F4,
-        "f8" => DType::F8,
-        "i4" => DType::I4,
-        "i8" => DType::I8,
-        _ => return Err(unsupported()),
+    let (order, code) = match descr.split_at_checked(1) {
+        Some((o @ ("<" | ">" | "|" | "="), code)) => (o, code),
+        _ => ("=", descr),
     };
+    let dtype = DType::from_code(code).ok_or_else(unsupported)?;
+    let big_endian = order == ">" || (order == "=" && cfg!(target_endian = "big"));
     let fortran = match dict_value(header, "fortran_order")? {
         v if v.starts_with("True") => true,
         v if v.starts_with("False") => false,
@@ -212,7 +295,7 @@ fn parse_header(header: &str) -> Result<(DType, bool, Vec<usize>), String> {
         .map(|s| s.trim_end_matches('L').parse::<usize>())
         .collect::<Result<Vec<_>, _>>()
         .map_err(|_| format!("cannot read 'shape' in header {header:?}"))?;
-    Ok((dtype, fortran, shape))
+    Ok(Header { dtype, big_endian, fortran, shape })
 }
 
 /// The text right after `'key':` in the header dict (leading spaces skipped).
@@ -315,10 +398,22 @@ impl Npz {
             let Some(key) = name.strip_suffix(".npy") else {
                 continue;
             };
-            let mut bytes = Vec::with_capacity(entry.size() as usize);
-            entry
+            // The entry's size is the archive's claim: read no more than the cap (a
+            // hostile size must not reserve memory, a zip bomb must not fill it).
+            if entry.size() > MAX_NPZ_ENTRY_BYTES {
+                return Err(bad(format!(
+                    "{name} claims {} bytes, more than the {MAX_NPZ_ENTRY_BYTES} this reader accepts (corrupt archive?)",
+                    entry.size()
+                )));
+            }
+            let mut bytes = Vec::new();
+            (&mut entry)
+                .take(MAX_NPZ_ENTRY_BYTES + 1)
                 .read_to_end(&mut bytes)
                 .map_err(|e| bad(format!("cannot read {name}: {e}")))?;
+            if bytes.len() as u64 > MAX_NPZ_ENTRY_BYTES {
+                return Err(bad(format!("{name} decompresses to more than {MAX_NPZ_ENTRY_BYTES} bytes (corrupt archive?)")));
+            }
             let array = parse_npy(&bytes).map_err(|m| bad(format!("{name}: {m}")))?;
             arrays.insert(key.to_string(), array);
         }
@@ -459,37 +554,97 @@ mod tests {
     }
 
     #[test]
+    fn reads_every_numeric_dtype_in_either_byte_order() {
+        let v1 = "{'descr': 'D', 'fortran_order': False, 'shape': (2,), }";
+        let cases: [(&str, Vec<u8>, [f64; 2]); 8] = [
+            ("|u1", vec![3, 250], [3.0, 250.0]),
+            ("|i1", vec![3, 0xff], [3.0, -1.0]),
+            ("|b1", vec![0, 1], [0.0, 1.0]),
+            ("<u2", [7u16, 65535].iter().flat_map(|v| v.to_le_bytes()).collect(), [7.0, 65535.0]),
+            (">i2", [-7i16, 300].iter().flat_map(|v| v.to_be_bytes()).collect(), [-7.0, 300.0]),
+            ("<f2", [0x3c00u16, 0xc000].iter().flat_map(|v| v.to_le_bytes()).collect(), [1.0, -2.0]),
+            (">f8", [0.25f64, -3.5].iter().flat_map(|v| v.to_be_bytes()).collect(), [0.25, -3.5]),
+            (">u4", [1u32, 4_000_000_000].iter().flat_map(|v| v.to_be_bytes()).collect(), [1.0, 4e9]),
+        ];
+        for (descr, body, want) in cases {
+            let a = parse_npy(&hand_built(1, &v1.replace('D', descr), &body)).unwrap_or_else(|e| panic!("{descr}: {e}"));
+            assert_eq!(a.data, want, "{descr}");
+        }
+    }
+
+    #[test]
+    fn fortran_order_is_transposed_to_c_order() {
+        // The 2x3 array [[1, 2, 3], [4, 5, 6]] stored column by column.
+        let body: Vec<u8> = [1.0f64, 4.0, 2.0, 5.0, 3.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let a = parse_npy(&hand_built(1, "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 3), }", &body)).unwrap();
+        assert_eq!((a.shape.clone(), a.data.clone()), (vec![2, 3], vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]));
+        // 2x2x2: element (i, j, k) at Fortran offset i + 2j + 4k holds 100i + 10j + k.
+        let mut f = [0.0f64; 8];
+        for (i, j, k) in (0..8).map(|n| (n / 4, (n / 2) % 2, n % 2)) {
+            f[i + 2 * j + 4 * k] = (100 * i + 10 * j + k) as f64;
+        }
+        let body: Vec<u8> = f.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let a = parse_npy(&hand_built(2, "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 2, 2), }", &body)).unwrap();
+        assert_eq!(a.data, [0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]);
+    }
+
+    #[test]
     fn rejects_unsupported_layouts() {
         let body = [0u8; 8];
+        for descr in ["<U2", "<c16", "|O", "<M8[s]"] {
+            let dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': (1,), }}");
+            let err = parse_npy(&hand_built(1, &dict, &body)).unwrap_err();
+            assert!(err.contains("not supported") && err.contains(descr), "{descr}: {err}");
+        }
         let err = parse_npy(&hand_built(
             1,
-            "{'descr': '<f8', 'fortran_order': True, 'shape': (1,), }",
+            "{'descr': [('a', '<f8')], 'fortran_order': False, 'shape': (1,), }",
             &body,
         ));
-        assert!(err.unwrap_err().contains("Fortran"));
-        let err = parse_npy(&hand_built(
-            1,
-            "{'descr': '>f8', 'fortran_order': False, 'shape': (1,), }",
-            &body,
-        ));
-        assert!(err.unwrap_err().contains("big-endian"));
-        let err = parse_npy(&hand_built(
-            1,
-            "{'descr': '<U2', 'fortran_order': False, 'shape': (1,), }",
-            &body,
-        ));
-        assert!(err.unwrap_err().contains("not supported"));
+        assert!(err.unwrap_err().contains("structured"));
         let err = parse_npy(&hand_built(
             1,
             "{'descr': '<f8', 'fortran_order': False, 'shape': (2,), }",
             &body,
         ));
         assert!(err.unwrap_err().contains("truncated"));
+        let err = parse_npy(&hand_built(
+            1,
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (1,), }",
+            &body,
+        ));
+        assert!(err.unwrap_err().contains("trailing bytes"));
+        // A header length past the end of the file (v2: a u32 length).
+        let mut bytes = hand_built(2, "{'descr': '<f8', 'fortran_order': False, 'shape': (1,), }", &body);
+        bytes[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(parse_npy(&bytes).unwrap_err().contains("truncated .npy header"));
         assert!(
             parse_npy(b"PK\x03\x04 not npy")
                 .unwrap_err()
                 .contains("magic")
         );
+    }
+
+    #[test]
+    fn npz_entries_claiming_more_than_the_cap_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.npz");
+        write_npz_f64(&path, &[("x", &[2], &[1.0, 2.0])]).unwrap();
+        // Patch the uncompressed size in the local header and the central directory.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let size = npy_bytes_f64(&[2], &[1.0, 2.0]).len() as u32;
+        let mut patched = 0;
+        for sig in [&b"PK\x03\x04"[..], &b"PK\x01\x02"[..]] {
+            let at = bytes.windows(4).position(|w| w == sig).unwrap();
+            let off = at + if sig[2] == 3 { 22 } else { 24 };
+            assert_eq!(u32::from_le_bytes(bytes[off..off + 4].try_into().unwrap()), size);
+            bytes[off..off + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+            patched += 1;
+        }
+        assert_eq!(patched, 2);
+        std::fs::write(&path, &bytes).unwrap();
+        let msg = Npz::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("a.npz") && msg.contains("x.npy") && msg.contains("claims"), "{msg}");
     }
 
     #[test]
