@@ -110,8 +110,8 @@ fn missing_image_for_a_pose() {
         let m = e.to_string();
         (e, m)
     };
-    assert!(matches!(err, DataError::NotFound { .. }));
-    assert!(has(&msg, &dir.path().join("images_4")), "{msg}");
+    assert!(matches!(err, DataError::Invalid { .. }), "{err:?}");
+    assert!(has(&msg, &dir.path().join("images_4")) && msg.contains("images_8 (--llff-factor 8)"), "{msg}");
 
     // Blender: a frame whose file does not exist.
     let dir = tempfile::tempdir().unwrap();
@@ -266,4 +266,175 @@ fn too_many_views_requested() {
         has(&msg, dir.path()) && msg.contains("5 training views"),
         "{msg}"
     );
+}
+
+/// A valid blender scene of `n` 8x6 frames (identity-rotation cameras at z = 4) with
+/// `top` merged into the file's top level and `frame0` into its first frame.
+fn blender_scene(root: &Path, n: usize, top: serde_json::Value, frame0: serde_json::Value) {
+    let eye = serde_json::json!([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+    let mut frames = Vec::new();
+    for i in 0..n {
+        write_png(&root.join(format!("r_{i}.png")), 8, 6);
+        frames.push(serde_json::json!({"file_path": format!("r_{i}"), "transform_matrix": eye}));
+    }
+    for (k, v) in frame0.as_object().unwrap() {
+        frames[0][k] = v.clone();
+    }
+    let mut t = serde_json::json!({"camera_angle_x": 0.7, "frames": frames});
+    for (k, v) in top.as_object().unwrap() {
+        t[k] = v.clone();
+    }
+    std::fs::write(root.join("transforms_train.json"), t.to_string()).unwrap();
+}
+
+fn blender_err(top: serde_json::Value, frame0: serde_json::Value) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    blender_scene(dir.path(), 2, top, frame0);
+    let (_, msg) = load_err(dir.path());
+    assert!(has(&msg, &dir.path().join("transforms_train.json")), "{msg}");
+    msg
+}
+
+/// Cameras that cannot form rays were loaded and trained on: a zero or negative focal
+/// length, a zero, scaled or mirrored rotation, a bottom row of 0 0 0 0.
+#[test]
+fn degenerate_cameras_are_refused() {
+    for (top, want) in [
+        (serde_json::json!({"fl_x": 0.0}), "focal length"),
+        (serde_json::json!({"fl_x": -50.0, "fl_y": -50.0}), "focal length"),
+        (serde_json::json!({"camera_angle_x": -1.0}), "camera_angle_x"),
+        (serde_json::json!({"camera_angle_x": 3.5}), "camera_angle_x"),
+        (serde_json::json!({"fl_x": 50.0, "w": 0.0}), "must be positive"),
+    ] {
+        let msg = blender_err(top.clone(), serde_json::json!({}));
+        assert!(msg.contains(want) && msg.contains("frame 0"), "{top}: {msg}");
+    }
+    let zero = serde_json::json!([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+    let scaled = serde_json::json!([[2.0, 0.0, 0.0, 0.0], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 2.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+    let mirrored = serde_json::json!([[-1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+    let bottom = serde_json::json!([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 0.0]]);
+    for (m, want) in [(zero, "not orthonormal"), (scaled, "not orthonormal"), (mirrored, "reflection"), (bottom, "bottom row")] {
+        let msg = blender_err(serde_json::json!({}), serde_json::json!({"transform_matrix": m}));
+        assert!(msg.contains(want) && msg.contains("frame 0"), "{msg}");
+    }
+}
+
+/// nerfstudio keys that change the rays are honoured (per-frame intrinsics) or refused
+/// (lens models and distortion); they were dropped without a word.
+#[test]
+fn nerfstudio_camera_keys_are_honoured_or_refused() {
+    for (top, want) in [
+        (serde_json::json!({"camera_model": "OPENCV_FISHEYE"}), "camera_model \"OPENCV_FISHEYE\""),
+        (serde_json::json!({"camera_model": "EQUIRECTANGULAR"}), "EQUIRECTANGULAR"),
+        (serde_json::json!({"camera_model": "OPENCV", "k1": 0.1}), "k1 = 0.1"),
+        (serde_json::json!({"k4": -0.01}), "k4"),
+        (serde_json::json!({"p1": 0.002}), "p1"),
+        (serde_json::json!({"p2": 0.002}), "p2"),
+        (serde_json::json!({"is_fisheye": true}), "is_fisheye"),
+    ] {
+        let msg = blender_err(top.clone(), serde_json::json!({}));
+        assert!(msg.contains(want) && msg.contains("undistort"), "{top}: {msg}");
+    }
+    // Distortion on one frame only.
+    let msg = blender_err(serde_json::json!({}), serde_json::json!({"k2": 0.05}));
+    assert!(msg.contains("k2") && msg.contains("frame 0"), "{msg}");
+
+    // Pinhole models and zero distortion load; per-frame intrinsics win over the top level.
+    let dir = tempfile::tempdir().unwrap();
+    blender_scene(
+        dir.path(),
+        2,
+        serde_json::json!({"camera_model": "OPENCV", "fl_x": 40.0, "fl_y": 41.0, "cx": 4.0, "cy": 3.0, "w": 8, "h": 6,
+                           "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0}),
+        serde_json::json!({"fl_x": 20.0, "cx": 3.5, "w": 16, "h": 12}),
+    );
+    let scene = Scene::load(dir.path(), &LoadOptions::default()).unwrap();
+    let (c0, c1) = (scene.views[0].camera, scene.views[1].camera);
+    // Frame 0: fl_x 20 for a 16x12 image (fl_y follows its own fl_x), scaled to 8x6.
+    assert_eq!((c0.fx, c0.fy, c0.cx, c0.cy), (10.0, 10.0, 1.75, 1.5), "{c0:?}");
+    assert_eq!((c1.fx, c1.fy, c1.cx, c1.cy), (40.0, 41.0, 4.0, 3.0), "{c1:?}");
+}
+
+/// `n` cameras of a pixelNeRF-layout DTU scan with 8x6 images: world_mat_i (K [R | t]
+/// looking at the origin) and an identity scale_mat_i.
+fn dtu_scan(root: &Path, n: usize) -> Vec<(String, Vec<f64>)> {
+    use glam::{DMat4, DVec3, DVec4};
+    let k = DMat4::from_cols(
+        DVec4::new(10.0, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, 10.0, 0.0, 0.0),
+        DVec4::new(4.0, 3.0, 1.0, 0.0),
+        DVec4::W,
+    );
+    let mut arrays = Vec::new();
+    for i in 0..n {
+        let a = i as f64 * 0.05;
+        let c = DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin());
+        let f = (-c).normalize();
+        let r = f.cross(DVec3::Y).normalize();
+        let d = f.cross(r);
+        let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W).transpose()
+            * DMat4::from_translation(-c);
+        let rows = |m: DMat4| (0..4).flat_map(|r| m.row(r).to_array()).collect::<Vec<f64>>();
+        arrays.push((format!("world_mat_{i}"), rows(k * w2c)));
+        arrays.push((format!("scale_mat_{i}"), rows(DMat4::IDENTITY)));
+        write_png(&root.join(format!("image/{i:06}.png")), 8, 6);
+    }
+    arrays
+}
+
+fn write_cameras(root: &Path, arrays: &[(String, Vec<f64>)]) {
+    let views: Vec<(&str, &[usize], &[f64])> =
+        arrays.iter().map(|(n, d)| (n.as_str(), &[4usize, 4][..], d.as_slice())).collect();
+    edgenerf::data::npy::write_npz_f64(&root.join("cameras.npz"), &views).unwrap();
+}
+
+/// A DTU archive missing one view's scale_mat was read in DTU's unnormalised frame (far
+/// bound 3.97 -> 618); one missing world_mat was reported as an image/camera count.
+#[test]
+fn dtu_archive_missing_a_views_matrix_names_it() {
+    let dir = tempfile::tempdir().unwrap();
+    // 49 views: the DTU protocol's split needs ids up to 48.
+    let arrays = dtu_scan(dir.path(), 49);
+    write_cameras(dir.path(), &arrays);
+    assert_eq!(Scene::load(dir.path(), &LoadOptions::default()).unwrap().views.len(), 49);
+    let npz = dir.path().join("cameras.npz");
+
+    let without = |name: &str| arrays.iter().filter(|(n, _)| n != name).cloned().collect::<Vec<_>>();
+    write_cameras(dir.path(), &without("scale_mat_2"));
+    let (err, msg) = load_err(dir.path());
+    assert!(matches!(err, DataError::Npy { .. }), "{err:?}");
+    assert!(has(&msg, &npz) && msg.contains("no scale_mat_2"), "{msg}");
+
+    write_cameras(dir.path(), &without("world_mat_1"));
+    let (_, msg) = load_err(dir.path());
+    assert!(has(&msg, &npz) && msg.contains("no world_mat_1"), "{msg}");
+
+    // A singular projection.
+    let mut bad = arrays.clone();
+    bad[2].1 = vec![0.0; 16];
+    write_cameras(dir.path(), &bad);
+    let (_, msg) = load_err(dir.path());
+    assert!(has(&msg, &npz) && msg.contains("world_mat_1"), "{msg}");
+}
+
+/// LLFF without images_8: the error lists the image folders the scene has and the
+/// --llff-factor that reads each (it cited an internal API); the factor is honoured.
+#[test]
+fn llff_without_the_default_image_folder_says_which_factor_to_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    llff_scene(dir.path(), 3);
+    std::fs::rename(dir.path().join("images_8"), dir.path().join("images_4")).unwrap();
+    let (_, msg) = load_err(dir.path());
+    assert!(
+        has(&msg, &dir.path().join("images_8")) && msg.contains("images_4 (--llff-factor 4)") && !msg.contains("LoadOptions"),
+        "{msg}"
+    );
+    let scene = Scene::load(dir.path(), &LoadOptions { llff_factor: 4, ..Default::default() }).unwrap();
+    assert_eq!(scene.views.len(), 3);
+    // A pose whose rotation is scaled names its row.
+    let mut rows = llff_scene(dir.path(), 3);
+    rows[17] = 3.0;
+    write_npy_f64(&dir.path().join("poses_bounds.npy"), &[3, 17], &rows).unwrap();
+    let (_, msg) = load_err(dir.path());
+    assert!(msg.contains("row 1") && msg.contains("orthonormal"), "{msg}");
 }

@@ -1,10 +1,15 @@
 //! NeRF-synthetic / Blender scenes (`transforms_{train,val,test}.json`), including our
 //! Mitsuba-rendered synthetic scenes with ground truth.
 //!
-//! * Cameras: `transform_matrix` is the camera-to-world matrix (rows, OpenGL frame).
-//!   Intrinsics: `fl_x` (and `fl_y`, `cx`, `cy`, defaulting to `fl_x` and the image
-//!   centre) for an image of `w x h` (default: the image's size), scaled to the loaded
-//!   image size; otherwise `camera_angle_x` with a centred principal point.
+//! * Cameras: `transform_matrix` is the camera-to-world matrix (rows, OpenGL frame),
+//!   rigid ([`Camera::check`]). Intrinsics: `fl_x` (and `fl_y`, `cx`, `cy`, defaulting
+//!   to `fl_x` and the image centre) for an image of `w x h` (default: the image's
+//!   size), scaled to the loaded image size; otherwise `camera_angle_x` with a centred
+//!   principal point. Each key may also be given per frame (nerfstudio does so when
+//!   cameras differ), where it wins over the top level's. Pinhole only: a
+//!   `camera_model` other than `PINHOLE`/`SIMPLE_PINHOLE` (or `OPENCV`, `SIMPLE_RADIAL`,
+//!   `RADIAL` with zero distortion), `is_fisheye`, or a non-zero `k1..k4`, `p1`, `p2` is
+//!   an error saying to undistort the images, never silently dropped.
 //! * Frames: `file_path` relative to the scene root, a leading `./` allowed, with or
 //!   without extension (`.png`, `.jpg`, `.jpeg` are tried). RGBA images are composited
 //!   over [`LoadOptions::background`] and `Scene::background` is set to it.
@@ -42,13 +47,8 @@ const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "PNG", "JPG"];
 
 #[derive(Deserialize)]
 struct Transforms {
-    camera_angle_x: Option<f32>,
-    fl_x: Option<f32>,
-    fl_y: Option<f32>,
-    cx: Option<f32>,
-    cy: Option<f32>,
-    w: Option<f32>,
-    h: Option<f32>,
+    #[serde(flatten)]
+    intrinsics: Intrinsics,
     near: Option<f32>,
     far: Option<f32>,
     aabb: Option<[[f32; 3]; 2]>,
@@ -62,6 +62,113 @@ struct Frame {
     depth_path: Option<String>,
     normal_path: Option<String>,
     mask_path: Option<String>,
+    /// nerfstudio writes intrinsics per frame when the cameras differ.
+    #[serde(flatten)]
+    intrinsics: Intrinsics,
+}
+
+/// The keys that define how pixels map to rays, at the top level of the file or per
+/// frame (a frame's own value wins). Lens models and distortion are read only to be
+/// refused: the renderer's cameras are pinhole, and dropping them silently would train
+/// on rays that miss their pixels.
+#[derive(Clone, Debug, Default, Deserialize)]
+struct Intrinsics {
+    camera_angle_x: Option<f32>,
+    fl_x: Option<f32>,
+    fl_y: Option<f32>,
+    cx: Option<f32>,
+    cy: Option<f32>,
+    w: Option<f32>,
+    h: Option<f32>,
+    /// nerfstudio / COLMAP camera model name.
+    camera_model: Option<String>,
+    /// Instant-NGP's fisheye switch.
+    is_fisheye: Option<bool>,
+    k1: Option<f32>,
+    k2: Option<f32>,
+    k3: Option<f32>,
+    k4: Option<f32>,
+    p1: Option<f32>,
+    p2: Option<f32>,
+}
+
+/// Camera models that are a pinhole, possibly with distortion terms (then all zero).
+const PINHOLE_MODELS: [&str; 5] = ["PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL"];
+
+impl Intrinsics {
+    /// `frame`'s keys over `self` (the file's top level). The focal length is taken
+    /// whole: a frame that sets `camera_angle_x` and no `fl_x` uses the angle, not the
+    /// top level's `fl_x`, and one that sets `fl_x` without `fl_y` has `fl_y = fl_x`.
+    fn under(&self, frame: &Intrinsics) -> Intrinsics {
+        let angle_only = frame.camera_angle_x.is_some() && frame.fl_x.is_none();
+        let pick = |f: Option<f32>, t: Option<f32>| f.or(t);
+        Intrinsics {
+            camera_angle_x: pick(frame.camera_angle_x, self.camera_angle_x),
+            fl_x: if angle_only { None } else { pick(frame.fl_x, self.fl_x) },
+            fl_y: match (angle_only, frame.fl_x) {
+                (true, _) => None,
+                (false, Some(_)) => frame.fl_y,
+                (false, None) => pick(frame.fl_y, self.fl_y),
+            },
+            cx: pick(frame.cx, self.cx),
+            cy: pick(frame.cy, self.cy),
+            w: pick(frame.w, self.w),
+            h: pick(frame.h, self.h),
+            camera_model: frame.camera_model.clone().or_else(|| self.camera_model.clone()),
+            is_fisheye: frame.is_fisheye.or(self.is_fisheye),
+            k1: pick(frame.k1, self.k1),
+            k2: pick(frame.k2, self.k2),
+            k3: pick(frame.k3, self.k3),
+            k4: pick(frame.k4, self.k4),
+            p1: pick(frame.p1, self.p1),
+            p2: pick(frame.p2, self.p2),
+        }
+    }
+
+    /// Refuses lens models and distortion the pinhole renderer cannot honour.
+    fn check_pinhole(&self) -> Result<(), String> {
+        const UNDISTORT: &str = "edgenerf's cameras are pinhole: undistort the images first (e.g. COLMAP's \
+             image_undistorter or ns-process-data), then write camera_model PINHOLE without distortion terms";
+        if let Some(model) = &self.camera_model
+            && !PINHOLE_MODELS.contains(&model.as_str())
+        {
+            return Err(format!("camera_model {model:?} is not supported; {UNDISTORT}"));
+        }
+        if self.is_fisheye == Some(true) {
+            return Err(format!("is_fisheye is true; {UNDISTORT}"));
+        }
+        let terms = [("k1", self.k1), ("k2", self.k2), ("k3", self.k3), ("k4", self.k4), ("p1", self.p1), ("p2", self.p2)];
+        if let Some((name, Some(v))) = terms.iter().find(|(_, v)| v.is_some_and(|v| v != 0.0)) {
+            return Err(format!("lens distortion {name} = {v} is not supported; {UNDISTORT}"));
+        }
+        Ok(())
+    }
+
+    /// The camera of a `width x height` image with pose `c2w`.
+    fn camera(&self, width: u32, height: u32, c2w: Mat4) -> Result<Camera, String> {
+        let (w, h) = (width as f32, height as f32);
+        if let Some(fl_x) = self.fl_x {
+            let (w0, h0) = (self.w.unwrap_or(w), self.h.unwrap_or(h));
+            if !(w0 > 0.0 && h0 > 0.0) {
+                return Err(format!("w {w0} / h {h0} must be positive"));
+            }
+            let (sx, sy) = (w / w0, h / h0);
+            return Ok(Camera {
+                width,
+                height,
+                fx: fl_x * sx,
+                fy: self.fl_y.unwrap_or(fl_x) * sy,
+                cx: self.cx.unwrap_or(0.5 * w0) * sx,
+                cy: self.cy.unwrap_or(0.5 * h0) * sy,
+                c2w,
+            });
+        }
+        match self.camera_angle_x {
+            Some(angle) if angle > 0.0 && angle < std::f32::consts::PI => Ok(Camera::from_fov_x(width, height, angle, c2w)),
+            Some(angle) => Err(format!("camera_angle_x = {angle} must be a field of view in radians, in (0, pi)")),
+            None => Err("no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h".into()),
+        }
+    }
 }
 
 fn read_transforms(path: &Path) -> Result<Transforms, DataError> {
@@ -93,33 +200,6 @@ fn find_image(root: &Path, file_path: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-impl Transforms {
-    /// The camera of a `width x height` image with pose `c2w`.
-    fn camera(&self, json: &Path, width: u32, height: u32, c2w: Mat4) -> Result<Camera, DataError> {
-        let (w, h) = (width as f32, height as f32);
-        if let Some(fl_x) = self.fl_x {
-            let (w0, h0) = (self.w.unwrap_or(w), self.h.unwrap_or(h));
-            let (sx, sy) = (w / w0, h / h0);
-            return Ok(Camera {
-                width,
-                height,
-                fx: fl_x * sx,
-                fy: self.fl_y.unwrap_or(fl_x) * sy,
-                cx: self.cx.unwrap_or(0.5 * w0) * sx,
-                cy: self.cy.unwrap_or(0.5 * h0) * sy,
-                c2w,
-            });
-        }
-        match self.camera_angle_x {
-            Some(angle) => Ok(Camera::from_fov_x(width, height, angle, c2w)),
-            None => Err(DataError::invalid(
-                json,
-                "no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h",
-            )),
-        }
-    }
-}
-
 /// Per-scene state shared by the frames being loaded.
 struct Loader<'a> {
     root: &'a Path,
@@ -138,12 +218,8 @@ impl Loader<'_> {
                 pose: what(),
             })?;
         let c2w = Mat4::from_cols_array_2d(&frame.transform_matrix).transpose();
-        if !c2w.is_finite() {
-            return Err(DataError::NonFinite {
-                path: json.to_path_buf(),
-                what: format!("transform_matrix of {}", what()),
-            });
-        }
+        let intrinsics = t.intrinsics.under(&frame.intrinsics);
+        intrinsics.check_pinhole().map_err(|m| DataError::invalid(json, format!("{}: {m}", what())))?;
         let img = read_view_image(
             &path,
             self.opts.load_images,
@@ -152,13 +228,10 @@ impl Loader<'_> {
         )?;
         let size = (img.info.width, img.info.height);
         self.any_alpha |= img.info.has_alpha;
-        let camera = t.camera(json, size.0, size.1, c2w)?;
-        if !camera.is_finite() {
-            return Err(DataError::NonFinite {
-                path: json.to_path_buf(),
-                what: format!("intrinsics of {}", what()),
-            });
-        }
+        let camera = intrinsics
+            .camera(size.0, size.1, c2w)
+            .and_then(|c| c.check().map(|()| c))
+            .map_err(|m| DataError::NonFinite { path: json.to_path_buf(), what: format!("{}: {m}", what()) })?;
         let mut view = View {
             name: file_stem(&path),
             path,

@@ -31,6 +31,10 @@ impl Ray {
     }
 }
 
+/// Largest deviation of `R^T R` from the identity [`Camera::check`] accepts in a pose's
+/// rotation (poses are often stored with 6-7 significant digits).
+pub const RIGID_TOLERANCE: f32 = 1e-3;
+
 /// A pinhole camera without distortion (principal point and focal lengths in pixels).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
@@ -99,6 +103,22 @@ impl Camera {
             && self.c2w.is_finite()
     }
 
+    /// Why this camera cannot produce rays, if it cannot: focal lengths must be finite
+    /// and positive, the principal point finite, and `c2w` a rigid transform (its
+    /// rotation orthonormal to [`RIGID_TOLERANCE`] with determinant +1, bottom row
+    /// `0 0 0 1`). Loaders call it on every camera they read, so a zero or negative
+    /// focal length, a scaled or zero rotation, a reflection or a projective bottom row
+    /// is an error naming the file instead of a scene trained on nonsense.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.fx.is_finite() && self.fy.is_finite() && self.fx > 0.0 && self.fy > 0.0) {
+            return Err(format!("focal length fx {} / fy {} (pixels) must be finite and positive", self.fx, self.fy));
+        }
+        if !(self.cx.is_finite() && self.cy.is_finite()) {
+            return Err(format!("principal point ({}, {}) is not finite", self.cx, self.cy));
+        }
+        check_rigid(&self.c2w)
+    }
+
     /// Camera-space direction (not normalised, `z = -1`) through image point `(px, py)`.
     fn camera_dir(&self, px: f32, py: f32) -> Vec3 {
         Vec3::new((px - self.cx) / self.fx, -(py - self.cy) / self.fy, -1.0)
@@ -153,6 +173,37 @@ impl Camera {
     pub fn in_frame(&self, px: Vec2) -> bool {
         px.x >= 0.0 && px.y >= 0.0 && px.x < self.width as f32 && px.y < self.height as f32
     }
+}
+
+/// Why `c2w` is not a rigid camera-to-world transform, if it is not: finite, rotation
+/// orthonormal to [`RIGID_TOLERANCE`] with determinant +1, bottom row `0 0 0 1`.
+pub fn check_rigid(c2w: &Mat4) -> Result<(), String> {
+    if !c2w.is_finite() {
+        return Err("the camera-to-world matrix contains NaN or infinite values".into());
+    }
+    let bottom = c2w.row(3);
+    if (bottom - glam::Vec4::W).abs().max_element() > 1e-5 {
+        return Err(format!(
+            "the camera-to-world matrix's bottom row is [{} {} {} {}], expected [0 0 0 1]",
+            bottom.x, bottom.y, bottom.z, bottom.w
+        ));
+    }
+    let r = glam::Mat3::from_mat4(*c2w);
+    let gram = r.transpose() * r;
+    let off = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .map(|(i, j)| (gram.col(j)[i] - if i == j { 1.0 } else { 0.0 }).abs())
+        .fold(0.0f32, f32::max);
+    if off > RIGID_TOLERANCE {
+        return Err(format!(
+            "the rotation part of the camera-to-world matrix is not orthonormal (R^T R differs from the \
+             identity by {off:.3}); it must be a rotation, without scale or shear"
+        ));
+    }
+    if r.determinant() < 0.0 {
+        return Err("the rotation part of the camera-to-world matrix is a reflection (determinant -1)".into());
+    }
+    Ok(())
 }
 
 /// NeRF's normalised device coordinates for forward-facing scenes (`ndc_rays`): world

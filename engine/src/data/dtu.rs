@@ -165,14 +165,52 @@ fn scan_images(root: &Path) -> Result<(PathBuf, Vec<PathBuf>), DataError> {
     Ok((root.to_path_buf(), if lit.is_empty() { rect } else { lit }))
 }
 
-/// Number of `world_mat_i` arrays (ids `0..n` must all be present).
-fn camera_count(npz: &Npz) -> usize {
-    npz.names()
-        .filter(|n| {
-            n.strip_prefix("world_mat_")
-                .is_some_and(|i| i.parse::<usize>().is_ok())
-        })
-        .count()
+/// Ids `i` of the arrays `{prefix}{i}`, sorted.
+fn ids(npz: &Npz, prefix: &str) -> Vec<usize> {
+    let mut ids: Vec<usize> = npz
+        .names()
+        .filter_map(|n| n.strip_prefix(prefix).and_then(|i| i.parse::<usize>().ok()))
+        .collect();
+    ids.sort_unstable();
+    ids
+}
+
+/// Number of cameras: `world_mat_0..n` must all be present, and `scale_mat_0..n` all
+/// or none (a view without its `scale_mat` would be read in DTU's unnormalised frame,
+/// hundreds of units away: its far bound jumped from 3.97 to 618).
+fn camera_count(npz: &Npz) -> Result<usize, DataError> {
+    let world = ids(npz, "world_mat_");
+    let n = world.last().map_or(0, |&last| last + 1);
+    let missing = |have: &[usize]| (0..n).find(|i| have.binary_search(i).is_err());
+    if let Some(i) = missing(&world) {
+        return Err(DataError::Npy {
+            path: npz.path().to_path_buf(),
+            message: format!(
+                "the archive has no world_mat_{i}, but has world_mat_ up to {}: every view 0..{n} needs its \
+                 projection matrix (a damaged or hand-edited archive; regenerate it)",
+                n - 1
+            ),
+        });
+    }
+    if n == 0 {
+        return Err(DataError::Npy {
+            path: npz.path().to_path_buf(),
+            message: "the archive holds no world_mat_<i> arrays (the cameras of a DTU scan)".into(),
+        });
+    }
+    let scale = ids(npz, "scale_mat_");
+    if !scale.is_empty()
+        && let Some(i) = missing(&scale)
+    {
+        return Err(DataError::Npy {
+            path: npz.path().to_path_buf(),
+            message: format!(
+                "the archive has no scale_mat_{i}, but has scale_mat_ for other views: each view needs its \
+                 normalisation (or none has one); regenerate the archive"
+            ),
+        });
+    }
+    Ok(n)
 }
 
 pub(super) fn load(
@@ -187,7 +225,7 @@ pub(super) fn load(
     };
     let npz = Npz::read(&root.join(npz_name))?;
     let (image_dir, images) = scan_images(root)?;
-    let n = camera_count(&npz);
+    let n = camera_count(&npz)?;
     if images.len() != n {
         return Err(DataError::CountMismatch {
             path: image_dir,
@@ -239,10 +277,10 @@ pub(super) fn load(
             cy: (cy / factor) as f32,
             c2w,
         };
-        if !camera.is_finite() {
+        if let Err(m) = camera.check() {
             return Err(DataError::NonFinite {
                 path: npz.path().to_path_buf(),
-                what: format!("camera {i}"),
+                what: format!("camera {i} (world_mat_{i}): {m}"),
             });
         }
         let mask = match &masks {

@@ -42,6 +42,39 @@ pub(crate) fn image_dir_name(factor: u32) -> String {
     }
 }
 
+/// The error for a missing `images_{factor}` folder: which image folders the scene
+/// has, and the `--llff-factor` that reads one.
+fn missing_image_dir(root: &Path, factor: u32) -> DataError {
+    let mut present: Vec<String> = std::fs::read_dir(root)
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .filter(|e| e.path().is_dir())
+                .filter_map(|e| e.file_name().to_str().map(str::to_string))
+                .filter(|n| n == "images" || n.strip_prefix("images_").is_some_and(|f| f.parse::<u32>().is_ok()))
+                .collect()
+        })
+        .unwrap_or_default();
+    present.sort();
+    let wanted = image_dir_name(factor);
+    let hint = match present.first() {
+        None => "the scene has no images or images_N folder: add the images (LLFF's imgs2poses writes images/, \
+                 NeRF's loader images_N/ downsampled by N)"
+            .to_string(),
+        Some(_) => {
+            let flags: Vec<String> = present
+                .iter()
+                .map(|n| format!("{n} (--llff-factor {})", n.strip_prefix("images_").unwrap_or("1")))
+                .collect();
+            format!("the scene has {}; pass the factor of one of them, or create {wanted} by downsampling the images", flags.join(", "))
+        }
+    };
+    DataError::invalid(
+        root.join(&wanted),
+        format!("LLFF image folder {wanted} (downsampling factor {factor}) not found; {hint}"),
+    )
+}
+
 /// One pose from `poses_bounds.npy`, after the axis fix.
 struct RawPose {
     c2w: DMat4,
@@ -111,6 +144,12 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             });
         }
         let pose = parse_row(row);
+        if let Err(m) = super::camera::check_rigid(&pose.c2w.as_mat4()) {
+            return Err(DataError::NonFinite {
+                path: poses_path.clone(),
+                what: format!("row {i} (pose of image {i}): {m}"),
+            });
+        }
         if pose.bounds[0] <= 0.0 || pose.hwf.iter().any(|&v| v <= 0.0) {
             return Err(DataError::invalid(
                 &poses_path,
@@ -123,10 +162,10 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     }
 
     let image_dir = root.join(image_dir_name(opts.llff_factor));
-    let files = list_images(
-        &image_dir,
-        "LLFF image folder (images_N for LoadOptions::llff_factor N)",
-    )?;
+    if !image_dir.is_dir() {
+        return Err(missing_image_dir(root, opts.llff_factor));
+    }
+    let files = list_images(&image_dir, "LLFF image folder")?;
     if files.len() != n {
         return Err(DataError::CountMismatch {
             path: image_dir,
@@ -179,10 +218,10 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             cy: 0.5 * h as f32,
             c2w: pose.as_mat4(),
         };
-        if !camera.is_finite() {
+        if let Err(m) = camera.check() {
             return Err(DataError::NonFinite {
                 path: poses_path.clone(),
-                what: format!("pose {i} became degenerate after recentring"),
+                what: format!("row {i} (pose of image {i}), after recentring: {m}"),
             });
         }
         views.push(View {
