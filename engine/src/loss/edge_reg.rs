@@ -208,14 +208,19 @@ impl RegConfig {
     }
 
     pub fn validate(&self) -> Result<(), String> {
-        let finite_nonneg = |v: f32| v.is_finite() && v >= 0.0;
-        if !(finite_nonneg(self.lambda_depth)
-            && finite_nonneg(self.lambda_color)
-            && self.lambda_normal.is_none_or(finite_nonneg)
-            && finite_nonneg(self.tau_depth)
-            && finite_nonneg(self.tau_normal))
-        {
-            return Err("reg: weights and thresholds must be finite and >= 0".into());
+        let values = [
+            ("lambda_depth", Some(self.lambda_depth)),
+            ("lambda_normal", self.lambda_normal),
+            ("lambda_color", Some(self.lambda_color)),
+            ("tau_depth", Some(self.tau_depth)),
+            ("tau_normal", Some(self.tau_normal)),
+        ];
+        for (key, v) in values {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                return Err(format!("reg.{key} = {v}: weights and thresholds must be finite and >= 0"));
+            }
         }
         Ok(())
     }

@@ -67,7 +67,7 @@ struct AdamParams {
 
 /// Weight decay of a group.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum WeightDecay {
     #[default]
     None,
@@ -90,7 +90,7 @@ impl WeightDecay {
 
 /// Optimizer-wide Adam hyper-parameters; groups may override betas, eps and weight decay.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AdamConfig {
     pub beta1: f32,
     pub beta2: f32,

@@ -105,7 +105,7 @@ struct ClipParams {
 
 /// Gradient clipping settings (0 disables a clip).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ClipConfig {
     /// Clip by global L2 norm (after the value clip); 0: off.
     pub max_norm: f32,

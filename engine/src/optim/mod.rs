@@ -63,7 +63,7 @@ pub enum OptimError {
 /// The optimizer room's configuration: one typed struct, serialized into the run's
 /// config file. The default is the Instant-NGP grid setting (see [`OptimConfig::instant_ngp`]).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct OptimConfig {
     pub adam: AdamConfig,
     pub clip: ClipConfig,

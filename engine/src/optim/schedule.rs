@@ -39,7 +39,7 @@ fn one() -> f32 {
 
 /// Step decay of [`LrSchedule::Ngp`] (see the module doc).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LrDecay {
     #[default]
     None,
@@ -49,7 +49,7 @@ pub enum LrDecay {
 
 /// A learning-rate schedule (see the module doc for formulas and the step convention).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LrSchedule {
     Constant {
         lr: f32,

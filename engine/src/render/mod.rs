@@ -141,7 +141,7 @@ pub enum RenderError {
 
 /// What shows through where a ray's opacity is below 1.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case", tag = "kind")]
+#[serde(rename_all = "snake_case", tag = "kind", deny_unknown_fields)]
 pub enum Background {
     /// No background: black, `rgb = sum_i w_i c_i`.
     #[default]
@@ -155,7 +155,7 @@ pub enum Background {
 
 /// Configuration of the render room.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RenderConfig {
     pub background: Background,
     /// Early termination: samples with transmittance below this do not contribute.

@@ -120,7 +120,7 @@ pub enum SamplerMode {
 
 /// Configuration of the sampler room.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SamplerConfig {
     pub mode: SamplerMode,
     /// Occupancy cells per axis.

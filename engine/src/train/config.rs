@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::data::LoadOptions;
 use crate::edges::EdgeConfig;
 use crate::field::{GridConfig, MlpConfig};
 use crate::loss::RegConfig;
@@ -21,7 +22,7 @@ use super::TrainError;
 use super::regnerf::RegNerfConfig;
 
 /// Which scene and how to load it.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SceneConfig {
     /// Scene directory (set by the CLI's positional argument).
@@ -31,6 +32,25 @@ pub struct SceneConfig {
     /// Background for RGBA images and for rendering; `None`: the scene's own
     /// (white for Blender-format scenes), black for scenes without one.
     pub background: Option<[f32; 3]>,
+    /// LLFF scenes: read `images_{llff_factor}` (`images` for 1); other formats ignore it.
+    pub llff_factor: u32,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        Self { path: PathBuf::new(), views: None, background: None, llff_factor: LoadOptions::default().llff_factor }
+    }
+}
+
+impl SceneConfig {
+    /// How to load the scene this config names (split, background, LLFF factor).
+    pub fn load_options(&self) -> LoadOptions {
+        let mut opts = LoadOptions { views: self.views, llff_factor: self.llff_factor, ..Default::default() };
+        if let Some(bg) = self.background {
+            opts.background = bg;
+        }
+        opts
+    }
 }
 
 /// Coarse-to-fine annealing of the encoding levels (a remedy for hash grids
@@ -102,6 +122,38 @@ impl Default for TrainConfig {
             level_anneal: None,
             random_background: true,
         }
+    }
+}
+
+impl TrainConfig {
+    /// Range checks (the trainer relies on them); each message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.rays_per_batch == 0 || self.max_samples == 0 {
+            return Err(format!(
+                "train.rays_per_batch = {} and train.max_samples = {} must both be positive",
+                self.rays_per_batch, self.max_samples
+            ));
+        }
+        if self.batch == BatchKind::Patches && !self.rays_per_batch.is_multiple_of(4) {
+            return Err(format!(
+                "train.rays_per_batch = {} must be a multiple of 4 with patch batches (4 rays per 2x2 patch)",
+                self.rays_per_batch
+            ));
+        }
+        if self.images_per_step == 0 {
+            return Err("train.images_per_step = 0: a patch batch needs at least 1 image".into());
+        }
+        if let Some(s) = self.max_seconds
+            && !(s.is_finite() && s > 0.0)
+        {
+            return Err(format!("train.max_seconds = {s} must be a positive number of seconds"));
+        }
+        if let Some(a) = &self.level_anneal
+            && a.start_levels == 0
+        {
+            return Err("train.level_anneal.start_levels = 0: at least 1 level must be active from the start".into());
+        }
+        Ok(())
     }
 }
 
@@ -263,6 +315,42 @@ impl RunConfig {
         Ok(())
     }
 
+    /// Checks every value's range, section by section, without touching the GPU or the
+    /// scene (the CLI calls it on the config it built, before any work; the trainer
+    /// again). Call [`RunConfig::resolve`] first. The message names the key, or at
+    /// least its section.
+    pub fn validate(&self) -> Result<(), String> {
+        self.train.validate()?;
+        if let Some(bg) = self.scene.background
+            && !bg.iter().all(|c| (0.0..=1.0).contains(c))
+        {
+            return Err(format!("scene.background = {bg:?}: each channel must lie in [0, 1]"));
+        }
+        if !(1..=64).contains(&self.scene.llff_factor) {
+            return Err(format!("scene.llff_factor = {} must lie in 1..=64", self.scene.llff_factor));
+        }
+        self.edges.validate().map_err(|e| format!("edges: {e}"))?;
+        self.reg.validate()?;
+        self.regnerf.validate()?;
+        self.priors.validate()?;
+        self.sampler.validate().map_err(|e| format!("sampler: {e}"))?;
+        match self.backend {
+            Backend::Grid => self.field.validate().map_err(|e| format!("field: {e}"))?,
+            Backend::Mlp => self.mlp.validate().map_err(|e| format!("mlp: {e}"))?,
+        }
+        self.optim.validate().map_err(|e| format!("optim: {e}"))?;
+        let t = self.render.transmittance_threshold;
+        if !(t.is_finite() && (0.0..1.0).contains(&t)) {
+            return Err(format!("render.transmittance_threshold = {t} must be finite and in [0, 1)"));
+        }
+        if let crate::render::Background::Color { rgb } = self.render.background
+            && !rgb.iter().all(|c| (0.0..=1.0).contains(c))
+        {
+            return Err(format!("render.background.rgb = {rgb:?}: each channel must lie in [0, 1]"));
+        }
+        Ok(())
+    }
+
     /// Paths the config records must be UTF-8: `config.json` and checkpoints hold them
     /// as JSON text ([`RunConfig::to_json`] panics otherwise). The message says which.
     pub fn check_paths(&self) -> Result<(), String> {
@@ -301,11 +389,42 @@ pub const FOLLOW_ITERS: u64 = 0;
 
 /// A config from JSON, the error naming the key at fault (`train.iters: invalid type:
 /// string "many", expected u64`) rather than only the type.
+///
+/// Unknown keys are errors in every table: most tables deny them through serde, and a
+/// key serde would still drop (beside the `kind` of a variant without fields, such as
+/// `render.background = {kind = "black", rgb = ...}`) is found by comparing the input
+/// with the config serialized back, which holds every key a config has.
 fn from_value_with_path(value: serde_json::Value) -> Result<RunConfig, String> {
-    serde_path_to_error::deserialize(value).map_err(|e| {
+    let config: RunConfig = serde_path_to_error::deserialize(&value).map_err(|e| {
         let path = e.path().to_string();
         if path == "." { e.into_inner().to_string() } else { format!("{path}: {}", e.into_inner()) }
-    })
+    })?;
+    let back = serde_json::to_value(&config).expect("configs serialize");
+    match first_unknown_key(&value, &back, "") {
+        Some(message) => Err(message),
+        None => Ok(config),
+    }
+}
+
+/// The first key of `input` that `known` (the same config serialized back) lacks.
+fn first_unknown_key(input: &serde_json::Value, known: &serde_json::Value, path: &str) -> Option<String> {
+    let (serde_json::Value::Object(input), serde_json::Value::Object(known)) = (input, known) else { return None };
+    for (k, v) in input {
+        let at = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+        match known.get(k) {
+            None => {
+                let keys: Vec<&str> = known.keys().map(String::as_str).collect();
+                let table = if path.is_empty() { "the config" } else { path };
+                return Some(format!("{at}: unknown key {k:?} ({table} has {})", keys.join(", ")));
+            }
+            Some(kv) => {
+                if let Some(m) = first_unknown_key(v, kv, &at) {
+                    return Some(m);
+                }
+            }
+        }
+    }
+    None
 }
 
 /// Overwrites `base` with every key of `over`, recursing into tables (a config file
@@ -378,6 +497,86 @@ mod tests {
         assert!(e.contains("TOML (.toml) or JSON (.json) only"), "{e}");
         let e = RunConfig::default().set("reg.lambda_depth=\"x\"").unwrap_err().to_string();
         assert!(e.contains("reg.lambda_depth"), "{e}");
+    }
+
+    /// Every table of a config, each section and each nested table (tagged variants
+    /// included), refuses a key it does not know: a typo never passes silently (the
+    /// sampler's, the field's, the optimizer's and the renderer's tables accepted any).
+    #[test]
+    fn an_unknown_key_in_any_table_is_an_error_naming_it() {
+        fn tables(v: &serde_json::Value, path: &mut Vec<String>, out: &mut Vec<Vec<String>>) {
+            if let serde_json::Value::Object(map) = v {
+                out.push(path.clone());
+                for (k, child) in map {
+                    path.push(k.clone());
+                    tables(child, path, out);
+                    path.pop();
+                }
+            }
+        }
+        let mut configs = vec![RunConfig::defaults_for(Backend::Grid), RunConfig::defaults_for(Backend::Mlp)];
+        // Optional tables and other variants, so that their keys are probed too.
+        let mut c = RunConfig::default();
+        c.train.level_anneal = Some(LevelAnneal::default());
+        c.set("render.background={\"kind\": \"color\", \"rgb\": [1, 1, 1]}").unwrap();
+        c.set("optim.adam.weight_decay={\"kind\": \"l2\", \"factor\": 0.1}").unwrap();
+        configs.push(c);
+        let (mut probed, mut accepted) = (0, Vec::new());
+        for config in configs {
+            let base = serde_json::to_value(&config).unwrap();
+            let mut paths = Vec::new();
+            tables(&base, &mut Vec::new(), &mut paths);
+            for path in paths {
+                let mut v = base.clone();
+                let mut node = &mut v;
+                for k in &path {
+                    node = node.get_mut(k).unwrap();
+                }
+                node.as_object_mut().unwrap().insert("no_such_key".into(), 1.into());
+                match from_value_with_path(v) {
+                    Err(e) if e.contains("no_such_key") => {}
+                    Err(e) => accepted.push(format!("{}: {e}", path.join("."))),
+                    Ok(_) => accepted.push(path.join(".")),
+                }
+                probed += 1;
+            }
+        }
+        assert!(accepted.is_empty(), "tables that took an unknown key without naming it: {accepted:?}");
+        assert!(probed >= 30, "only {probed} tables probed");
+    }
+
+    /// Out-of-range values are errors naming their key, whether or not the run would
+    /// read them (`--tau-e 300` passed on runs without edge masks; a patch size of
+    /// 100000 overflowed the ray count; `images_per_step = 0`, a background of 2 and
+    /// `level_anneal.start_levels = 0` trained).
+    #[test]
+    fn validate_names_the_key_out_of_range() {
+        assert_eq!(RunConfig::default().validate(), Ok(()));
+        let mut mlp = RunConfig::defaults_for(Backend::Mlp);
+        mlp.resolve();
+        assert_eq!(mlp.validate(), Ok(()));
+        for (set, key) in [
+            ("train.rays_per_batch=0", "train.rays_per_batch"),
+            ("train.images_per_step=0", "train.images_per_step"),
+            ("train.max_seconds=-1", "train.max_seconds"),
+            ("train.level_anneal.start_levels=0", "train.level_anneal.start_levels"),
+            ("scene.background=[2,0,0]", "scene.background"),
+            ("scene.llff_factor=0", "scene.llff_factor"),
+            ("render.transmittance_threshold=2", "render.transmittance_threshold"),
+            ("reg.lambda_depth=-1", "reg.lambda_depth"),
+            ("reg.tau_normal=-0.5", "reg.tau_normal"),
+            ("regnerf.patch_size=100000", "regnerf.patch_size"),
+            ("regnerf.n_poses=0", "regnerf.n_poses"),
+            ("edges.tau_e=300", "tau_e"),
+            ("sampler.resolution=0", "sampler"),
+            ("field.n_levels=0", "n_levels"),
+            ("priors.occlusion=-1", "priors.occlusion"),
+        ] {
+            let mut c = RunConfig::default();
+            c.set(set).unwrap();
+            let e = c.validate().expect_err(set);
+            assert!(e.contains(key), "{set}: {e}");
+        }
     }
 
     #[test]

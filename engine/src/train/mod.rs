@@ -331,8 +331,10 @@ impl Trainer {
         // The scene decides lambda3's default (0.001 on DTU): record the value in effect,
         // so that config.json and the checkpoint say what ran, not `null`.
         config.reg.lambda_normal = Some(config.reg.lambda_normal_for(is_dtu(&scene)));
+        config.regnerf.resolve_for(&scene);
         config.optim.validate()?;
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
+        config.validate().map_err(config_error)?;
         config.reg.validate().map_err(config_error)?;
         config.regnerf.validate().map_err(config_error)?;
         config.priors.validate().map_err(config_error)?;

@@ -31,6 +31,13 @@ use crate::samples::GpuRay;
 
 use super::random_poses::PoseKind;
 
+/// Largest `regnerf.patch_size` accepted.
+pub const MAX_PATCH_SIZE: u32 = 64;
+/// Most depth-TV rays per step (`patches_per_step * patch_size^2`).
+pub const MAX_TV_RAYS: u32 = 1 << 20;
+/// Largest random-pose pool.
+pub const MAX_POSES: usize = 1_000_000;
+
 /// RegNeRF's options (`[regnerf]` in a run config).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -152,15 +159,28 @@ impl RegNerfConfig {
 
     /// The annealing schedule in effect, `None` when off.
     pub fn anneal_for(&self, scene: &Scene) -> Option<Anneal> {
-        if !self.anneal {
-            return None;
-        }
+        self.anneal.then(|| self.anneal_schedule_for(scene))
+    }
+
+    /// The annealing schedule on `scene` whether or not annealing is on: the given
+    /// values, RegNeRF's for the scene type otherwise.
+    fn anneal_schedule_for(&self, scene: &Scene) -> Anneal {
         let (steps, start, mid) = if scene.ndc.is_some() { (512, 1e-4, 1.0) } else { (256, 0.5, 0.5) };
-        Some(Anneal {
+        Anneal {
             steps: self.anneal_steps.unwrap_or(steps),
             start: self.anneal_start.unwrap_or(start),
             mid: self.anneal_mid.unwrap_or(mid),
-        })
+        }
+    }
+
+    /// Fills in the options that default by scene type (`poses`, `tv_acc_weight`,
+    /// `anneal_*`) with their values on `scene`, so that `config.json` and checkpoints
+    /// record what a run used rather than `null`. Idempotent; the trainer calls it.
+    pub fn resolve_for(&mut self, scene: &Scene) {
+        self.poses = Some(self.pose_kind_for(scene));
+        self.tv_acc_weight = Some(self.acc_weight_for(scene));
+        let a = self.anneal_schedule_for(scene);
+        (self.anneal_steps, self.anneal_start, self.anneal_mid) = (Some(a.steps), Some(a.start), Some(a.mid));
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -169,8 +189,23 @@ impl RegNerfConfig {
         if !(ok(self.tv_weight) && self.tv_weight_start.is_none_or(ok) && self.tv_acc_weight.is_none_or(ok)) {
             return Err("regnerf: weights must be finite and >= 0".into());
         }
-        if self.patch_size < 2 || self.patches_per_step == Some(0) || self.n_poses == 0 {
-            return Err("regnerf: patch_size must be >= 2, patches_per_step and n_poses >= 1".into());
+        // Bounded above too: the rays of a step (patches x patch_size^2) and the pose
+        // pool are allocated (patch_size 100000 overflowed the ray count).
+        if !(2..=MAX_PATCH_SIZE).contains(&self.patch_size) {
+            return Err(format!("regnerf.patch_size = {} must lie in 2..={MAX_PATCH_SIZE} (RegNeRF: 8)", self.patch_size));
+        }
+        if let Some(p) = self.patches_per_step
+            && !(1..=MAX_TV_RAYS / (self.patch_size * self.patch_size)).contains(&p)
+        {
+            return Err(format!(
+                "regnerf.patches_per_step = {p} must lie in 1..={} (at most {MAX_TV_RAYS} rays of {}x{} patches)",
+                MAX_TV_RAYS / (self.patch_size * self.patch_size),
+                self.patch_size,
+                self.patch_size
+            ));
+        }
+        if !(1..=MAX_POSES).contains(&self.n_poses) {
+            return Err(format!("regnerf.n_poses = {} must lie in 1..={MAX_POSES} (RegNeRF: 10000)", self.n_poses));
         }
         if !(unit(self.anneal_start) && unit(self.anneal_mid)) {
             return Err("regnerf: anneal_start and anneal_mid must lie in [0, 1]".into());

@@ -134,7 +134,7 @@ pub enum DensityActivation {
 
 /// Configuration of the hash-grid field. Defaults are Instant-NGP's.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GridConfig {
     /// Levels `L` (1..=32).
     pub n_levels: u32,
