@@ -101,6 +101,9 @@ fn train_writes_its_run_directory_and_render_reads_it_back() {
     let config: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["train"]["iters"], 4);
     assert_eq!(config["field"]["n_levels"], 8, "the config file's values are in the effective config");
+    // Values that default by scene are recorded as used, not null (issue 16).
+    assert_eq!(config["scene"]["llff_factor"], 8);
+    assert!(config["regnerf"]["poses"].is_string() && config["regnerf"]["anneal_steps"].is_u64(), "{}", config["regnerf"]);
 
     // Resume extends the run from its checkpoint.
     let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--resume", "--iters", "6", "--no-eval"]);
@@ -231,7 +234,8 @@ fn a_non_utf8_scene_path_is_a_clear_error() {
     let o = common::command()
         .arg("train")
         .arg(&scene)
-        .args(["--out", out.path().join("run").to_str().unwrap()])
+        // A --set too: it failed on the path, blaming the --set.
+        .args(["--out", out.path().join("run").to_str().unwrap(), "--set", "train.seed=1"])
         .output()
         .unwrap();
     let t = text(&o);
@@ -270,4 +274,95 @@ fn train_with_edge_guided_regularizers_logs_each_term_and_caches_masks() {
         serde_json::from_str(&std::fs::read_to_string(out.path().join("official/config.json")).unwrap()).unwrap();
     assert_eq!(config["edges"]["source"], "none");
     assert_eq!(config["reg"]["variant"], "official");
+}
+
+/// A Blender scene without transforms_test.json trained, then failed with a bare "No
+/// such file or directory": now refused before any work, saying what to do.
+#[test]
+fn a_scene_without_test_views_is_refused_before_training() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = out.path().join("no-test");
+    let src = repo().join("synthetic-scenes/small/creases");
+    std::fs::create_dir_all(scene.join("train")).unwrap();
+    std::fs::copy(src.join("transforms_train.json"), scene.join("transforms_train.json")).unwrap();
+    for e in std::fs::read_dir(src.join("train")).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, scene.join("train").join(p.file_name().unwrap())).unwrap();
+    }
+    let run = out.path().join("run");
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--iters", "1"]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("no test views") && t.contains("transforms_test.json") && t.contains("--no-eval"), "{t}");
+    assert!(!run.join("log.csv").exists() && !run.join("checkpoint.safetensors").exists(), "refused before training");
+}
+
+/// `--llff-factor N` reads images_N (there was no flag; the error for a missing images_8
+/// cited an internal API).
+#[test]
+fn llff_factor_flag_reads_another_image_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rows = Vec::new();
+    for i in 0..3 {
+        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 48.0, 0.0, 1.0, 0.0, 0.0, 64.0, 0.0, 0.0, 1.0, 0.0, 80.0, 2.0, 20.0]);
+        let p = dir.path().join(format!("images_4/img{i}.png"));
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        image::RgbImage::new(16, 12).save(&p).unwrap();
+    }
+    edgenerf::data::npy::write_npy_f64(&dir.path().join("poses_bounds.npy"), &[3, 17], &rows).unwrap();
+    let scene = dir.path().to_str().unwrap();
+    let o = edgenerf(&["info", scene, "--no-gpu"]);
+    assert!(!o.status.success() && text(&o).contains("images_4 (--llff-factor 4)"), "{}", text(&o));
+    let o = edgenerf(&["info", scene, "--no-gpu", "--llff-factor", "4"]);
+    assert!(o.status.success() && text(&o).contains("3 of 16x12"), "{}", text(&o));
+    let o = edgenerf(&["info", scene, "--no-gpu", "--llff-factor", "0"]);
+    assert!(!o.status.success() && text(&o).contains("--llff-factor"), "{}", text(&o));
+}
+
+/// Printing into a closed pipe (`edgenerf info ... | head -1`) panicked with a backtrace;
+/// it now ends quietly on SIGPIPE, as other Unix tools do.
+#[cfg(unix)]
+#[test]
+fn a_closed_stdout_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = common::command()
+        .args(["info", repo().join("synthetic-scenes/small/creases").to_str().unwrap(), "--no-gpu"])
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    const SIGPIPE: i32 = 13;
+    assert_eq!(o.status.signal(), Some(SIGPIPE), "{:?} {err}", o.status);
+}
+
+/// Numeric flags are range-checked before any work, negative values included (clap
+/// took `-1` for a flag), NaN included (it became `null`, i.e. the default, through
+/// --set), and whether or not the run reads the value (`--tau-e 300` passed on a run
+/// without edge masks).
+#[test]
+fn numeric_flags_are_range_checked_before_any_work() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let demo = repo().join("tools/configs/demo.toml");
+    for (flag, value, key) in [
+        ("--lambda-depth", "-1", "reg.lambda_depth"),
+        ("--lambda-normal", "nan", "reg.lambda_normal"),
+        ("--max-seconds", "-1", "train.max_seconds"),
+        ("--max-seconds", "nan", "train.max_seconds"),
+        ("--iters", "0", "train.iters"),
+        ("--tau-e", "300", "tau_e"),
+        ("--canny-low", "-0.5", "canny thresholds"),
+    ] {
+        let run = out.path().join("run");
+        let o = edgenerf(&[
+            "train", scene.to_str().unwrap(), "--out", run.to_str().unwrap(), "--config", demo.to_str().unwrap(),
+            "--set", "sampler.steps_per_diagonal=48", "--no-eval", flag, value,
+        ]);
+        let t = text(&o);
+        assert!(!o.status.success() && t.contains(key), "{flag} {value}: {t}");
+        assert!(!run.join("log.csv").exists(), "{flag} {value}: refused before training");
+    }
 }

@@ -38,7 +38,7 @@ pub struct Args {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Repeats of each (scene, config) (default: the suite's).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     repeats: Option<u32>,
     /// Train nothing: rebuild results and report from the runs present.
     #[arg(long)]

@@ -20,19 +20,19 @@ pub struct EdgeArgs {
     #[arg(long, value_enum, value_name = "dark|bright")]
     pub edge_polarity: Option<PolarityArg>,
     /// Binarization threshold on the map's grey level 0..255 (default 125).
-    #[arg(long, value_name = "LEVEL")]
+    #[arg(long, allow_negative_numbers = true, value_name = "LEVEL")]
     pub tau_e: Option<f32>,
     /// Do not widen edge regions with the 3x3 dilation.
     #[arg(long)]
     pub no_dilate: bool,
     /// Canny: Gaussian blur sigma in pixels (default 2).
-    #[arg(long, value_name = "PIXELS")]
+    #[arg(long, allow_negative_numbers = true, value_name = "PIXELS")]
     pub canny_sigma: Option<f32>,
     /// Canny: low threshold, a fraction of the image's largest gradient (default 0.05).
-    #[arg(long, value_name = "FRACTION")]
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION")]
     pub canny_low: Option<f32>,
     /// Canny: high threshold, a fraction of the image's largest gradient (default 0.15).
-    #[arg(long, value_name = "FRACTION")]
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION")]
     pub canny_high: Option<f32>,
 }
 

@@ -21,12 +21,19 @@ pub struct SceneArgs {
     /// Training views of the sparse-view split (default: all).
     #[arg(long, short = 'k')]
     pub views: Option<usize>,
+    /// LLFF scenes: read the images of images_N, downsampled by N (default 8; 1 reads
+    /// images/). Recorded in the run's config (scene.llff_factor).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub llff_factor: Option<u32>,
 }
 
 impl SceneArgs {
     /// Loads the scene with the split's `views` and default options otherwise.
     pub fn load(&self) -> anyhow::Result<Scene> {
-        let opts = LoadOptions { views: self.views, ..Default::default() };
+        let mut opts = LoadOptions { views: self.views, ..Default::default() };
+        if let Some(f) = self.llff_factor {
+            opts.llff_factor = f;
+        }
         Scene::load(&self.scene, &opts).with_context(|| format!("loading {}", self.scene.display()))
     }
 }

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use edgenerf::data::{LoadOptions, Scene};
+use edgenerf::data::Scene;
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::train::{Checkpoint, Trainer};
 use indicatif::ProgressBar;
@@ -70,12 +70,8 @@ pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) 
     if let Some(scene) = scene {
         ckpt.config.scene.path = scene.to_path_buf();
     }
-    let mut opts = LoadOptions { views: ckpt.config.scene.views, ..Default::default() };
-    if let Some(bg) = ckpt.config.scene.background {
-        opts.background = bg;
-    }
     let scene_path = ckpt.config.scene.path.clone();
-    let scene = Scene::load(&scene_path, &opts)
+    let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options())
         .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
     let gpu = Gpu::new(gpu_opts)?;
     Ok(Trainer::resume(gpu, scene, ckpt, None)?)
@@ -91,9 +87,21 @@ pub fn split_views(scene: &Scene, split: &str) -> anyhow::Result<Vec<usize>> {
     })
 }
 
+/// The message for a scene without test views, ending with what to do instead (`hint`).
+pub fn no_test_views(scene: &Scene, hint: &str) -> String {
+    let files = match scene.format {
+        edgenerf::data::SceneFormat::Blender => "no transforms_test.json or transforms_val.json",
+        _ => "every view is a training view of this split",
+    };
+    format!("{} has no test views ({files}), so there is nothing to evaluate; {hint}", scene.root.display())
+}
+
 /// Renders the test views, writes them under `dir`, prints per-view and mean PSNR and
 /// saves them as `dir/metrics.json`.
 pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<()> {
+    if trainer.scene.split.test.is_empty() {
+        bail!("{}", no_test_views(&trainer.scene, "render --split train or --split all instead"));
+    }
     let (eval, renders) = trainer.evaluate()?;
     for (v, r) in &renders {
         crate::output::write_view(dir, &trainer.scene.views[*v].name, r)?;
@@ -132,6 +140,7 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
             fmt(eval.mean_dbe_completeness, ""),
         );
     }
-    std::fs::write(dir.join("metrics.json"), serde_json::to_string_pretty(&eval)?)?;
+    let metrics = dir.join("metrics.json");
+    std::fs::write(&metrics, serde_json::to_string_pretty(&eval)?).with_context(|| format!("writing {}", metrics.display()))?;
     Ok(())
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use edgenerf::data::{LoadOptions, Scene};
+use edgenerf::data::Scene;
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::loss::RegVariant;
 use edgenerf::train::{Backend, Checkpoint, RunConfig, StepStats, Trainer, TrainError};
@@ -24,7 +24,7 @@ pub struct Args {
     iters: Option<u64>,
     /// Stop once training has run this many seconds (train.max_seconds; the
     /// learning-rate schedule still follows --iters): equal-wall-time comparisons.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, allow_negative_numbers = true, value_name = "SECONDS")]
     max_seconds: Option<f64>,
     /// Field backend: the hash grid, or the mip-NeRF MLP (whose defaults include
     /// RegNeRF's optimizer and schedule). Recorded in the checkpoint.
@@ -41,10 +41,10 @@ pub struct Args {
     #[arg(long, value_parser = ["paper", "official"])]
     reg_variant: Option<String>,
     /// lambda2, the weight of L_z (reg.lambda_depth; paper 0.1).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     lambda_depth: Option<f32>,
     /// lambda3, the weight of L_n (reg.lambda_normal; paper 0.1, 0.001 on DTU; official 0.01).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     lambda_normal: Option<f32>,
     /// RegNeRF's depth smoothness: total variation of the depth of 8x8 patches rendered
     /// from random unobserved poses (regnerf.depth_tv; weights regnerf.tv_weight*).
@@ -68,7 +68,7 @@ pub struct Args {
     /// (to extend the run), --max-seconds and --no-eval may change; flags that would
     /// change the run are refused.
     #[arg(long, conflicts_with_all = [
-        "config", "overrides", "backend", "views", "no_depth_reg", "no_normal_reg", "reg_variant",
+        "config", "overrides", "backend", "views", "llff_factor", "no_depth_reg", "no_normal_reg", "reg_variant",
         "lambda_depth", "lambda_normal", "regnerf_depth_tv", "anneal_sample_space", "edges",
         "edge_polarity", "tau_e", "no_dilate", "canny_sigma", "canny_low", "canny_high", "overwrite",
     ])]
@@ -93,6 +93,9 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     config.scene.path = absolute_scene(&args.input.scene)?;
     if args.input.views.is_some() {
         config.scene.views = args.input.views;
+    }
+    if let Some(f) = args.input.llff_factor {
+        config.scene.llff_factor = f;
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
@@ -122,20 +125,34 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     if args.anneal_sample_space {
         config.regnerf.anneal = true;
     }
+    // Before any --set: `set` goes through JSON, which cannot hold a non-UTF-8 path
+    // (the error blamed the --set instead of the path) nor a NaN (`--lambda-normal nan`
+    // became null, i.e. the default, without a word).
+    config.check_paths().map_err(anyhow::Error::msg)?;
+    let mut resolved = config.clone();
+    resolved.resolve();
+    resolved.validate().map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     for o in &args.overrides {
         config.set(o)?;
     }
     config.resolve();
     config.check_paths().map_err(anyhow::Error::msg)?;
+    // Every range before any work, whether or not this run reads the value (a --tau-e
+    // 300 on a run without edge masks passed unnoticed).
+    config.validate().map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
+    if config.train.iters == 0 {
+        bail!("train.iters = 0 (--iters): nothing to train; ask for at least 1 step");
+    }
+    if let Some(dir) = config.edges.dir.as_ref().filter(|_| config.edges.source == edgenerf::edges::EdgeSource::External)
+        && !dir.is_dir()
+    {
+        bail!("--edges {}: no such directory of edge maps (or pass canny or none)", dir.display());
+    }
     Ok(config)
 }
 
 pub(crate) fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
-    let mut opts = LoadOptions { views: config.scene.views, ..Default::default() };
-    if let Some(bg) = config.scene.background {
-        opts.background = bg;
-    }
-    Scene::load(&config.scene.path, &opts).with_context(|| format!("loading {}", config.scene.path.display()))
+    Scene::load(&config.scene.path, &config.scene.load_options()).with_context(|| format!("loading {}", config.scene.path.display()))
 }
 
 /// The training views' edge masks, cached in `<out>/edges/` (PNG per view, reused while
@@ -150,6 +167,16 @@ fn edge_masks(args: &Args, config: &RunConfig, scene: &Scene) -> anyhow::Result<
     let mean_edge = masks.iter().map(|m| m.edge_fraction()).sum::<f32>() / masks.len().max(1) as f32;
     eprintln!("edge masks: {} views, {:.1}% edge pixels on average, in {}", masks.len(), 100.0 * mean_edge, dir.display());
     Ok(Some(masks))
+}
+
+/// The final evaluation needs test views: without them, refuse before training (a
+/// scene without `transforms_test.json` trained, then failed with a bare "No such file
+/// or directory").
+fn check_test_views(args: &Args, scene: &Scene) -> anyhow::Result<()> {
+    if !args.no_eval && scene.split.test.is_empty() {
+        bail!("{}", crate::cmd::render::no_test_views(scene, "pass --no-eval to train without the final evaluation"));
+    }
+    Ok(())
 }
 
 /// What a run writes into its directory; any of them there means the directory holds a
@@ -264,11 +291,13 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         }
         ckpt.config.scene.path = resumed_scene(&args, &ckpt.config.scene.path)?;
         let scene = load_scene(&ckpt.config)?;
+        check_test_views(&args, &scene)?;
         let masks = edge_masks(&args, &ckpt.config, &scene)?;
         Trainer::resume(gpu, scene, ckpt, masks)?
     } else {
         let config = build_config(&args)?;
         let scene = load_scene(&config)?;
+        check_test_views(&args, &scene)?;
         let masks = edge_masks(&args, &config, &scene)?;
         Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
