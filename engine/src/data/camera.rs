@@ -6,6 +6,9 @@
 //! rotation (orthonormal up to the rounding of the source data) and whose last column is
 //! the camera centre; it is never scaled, so world units are the scene's units.
 //!
+//! Loaders enforce this with [`Camera::check`] (positive finite focal lengths, a rigid
+//! `c2w` with bottom row `0 0 0 1`), refusing the camera file otherwise.
+//!
 //! Invariants: [`Camera::pixel_ray`] returns a unit direction and `z_scale` in `(0, 1]`;
 //! [`Camera::project`] is its inverse (a point at distance `t` along the ray of pixel `p`
 //! projects back to `p` with z-depth `t * z_scale`).

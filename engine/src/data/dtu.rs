@@ -1,8 +1,9 @@
 //! DTU scans, in the IDR layout (`cameras_sphere.npz`) and the pixelNeRF/RegNeRF layout
 //! (`cameras.npz`); both share this code.
 //!
-//! * Cameras: `world_mat_i` (the 3x4 or 4x4 projection `K [R | t]` of view `i`) and the
-//!   optional `scale_mat_i` (maps the normalised frame to DTU's world). The projection
+//! * Cameras: `world_mat_i` (the 3x4 or 4x4 projection `K [R | t]` of view `i`, every `i`
+//!   in `0..n` present) and the optional `scale_mat_i` (maps the normalised frame to
+//!   DTU's world; for every view or for none, a missing one is an error naming it). The projection
 //!   of the normalised frame is `P = world_mat @ scale_mat`; its left 3x3 is split by an
 //!   RQ decomposition into `K` (upper triangular, positive diagonal, `K[2][2] = 1`) and a
 //!   rotation `R`, and the camera centre is `-M^-1 p4` (as `cv2.decomposeProjectionMatrix`

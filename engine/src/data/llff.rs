@@ -17,7 +17,9 @@
 //! `0`/`1` and its `aabb` is the NDC slab `[-1.5, 1.5]^2 x [-1, 1]`: wider than the
 //! NDC cube in x and y because cameras rotated off the mean axis (fern: up to ~9 deg)
 //! send border rays up to ~1.44 sideways before they reach z = 1. Images are the image files of
-//! `images_{factor}` (`images` for factor 1) sorted by name, one per pose in order.
+//! `images_{factor}` (`images` for factor 1; [`LoadOptions::llff_factor`], the CLI's
+//! `--llff-factor`) sorted by name, one per pose in order; without that folder the error
+//! lists the image folders the scene has. Every pose must be rigid ([`super::camera::check_rigid`]).
 //! Split: [`llff_split`].
 
 use std::path::Path;

@@ -2,9 +2,11 @@
 //! written as `config.json` in every run directory.
 //!
 //! Invariants: every field has a default (`#[serde(default)]`), so a config file
-//! names only what it changes; unknown keys are an error (typos do not pass
-//! silently); [`RunConfig::set`] applies `a.b.c=value` overrides through the same
-//! serde representation, so the CLI never redefines an option.
+//! names only what it changes; an unknown key is an error in every table, variants
+//! included (typos do not pass silently); errors name the key at fault;
+//! [`RunConfig::validate`] checks every range without touching the GPU or the scene;
+//! [`RunConfig::set`] applies `a.b.c=value` overrides through the same serde
+//! representation, so the CLI never redefines an option.
 
 use std::path::{Path, PathBuf};
 
