@@ -1,5 +1,7 @@
 //! Broken scenes give errors that name the offending path and say what is wrong.
 
+mod common;
+
 use std::path::Path;
 
 use edgenerf::data::npy::write_npy_f64;
@@ -358,28 +360,10 @@ fn nerfstudio_camera_keys_are_honoured_or_refused() {
 /// `n` cameras of a pixelNeRF-layout DTU scan with 8x6 images: world_mat_i (K [R | t]
 /// looking at the origin) and an identity scale_mat_i.
 fn dtu_scan(root: &Path, n: usize) -> Vec<(String, Vec<f64>)> {
-    use glam::{DMat4, DVec3, DVec4};
-    let k = DMat4::from_cols(
-        DVec4::new(10.0, 0.0, 0.0, 0.0),
-        DVec4::new(0.0, 10.0, 0.0, 0.0),
-        DVec4::new(4.0, 3.0, 1.0, 0.0),
-        DVec4::W,
-    );
-    let mut arrays = Vec::new();
     for i in 0..n {
-        let a = i as f64 * 0.05;
-        let c = DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin());
-        let f = (-c).normalize();
-        let r = f.cross(DVec3::Y).normalize();
-        let d = f.cross(r);
-        let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W).transpose()
-            * DMat4::from_translation(-c);
-        let rows = |m: DMat4| (0..4).flat_map(|r| m.row(r).to_array()).collect::<Vec<f64>>();
-        arrays.push((format!("world_mat_{i}"), rows(k * w2c)));
-        arrays.push((format!("scale_mat_{i}"), rows(DMat4::IDENTITY)));
         write_png(&root.join(format!("image/{i:06}.png")), 8, 6);
     }
-    arrays
+    common::dtu_camera_matrices(n, 1.0)
 }
 
 fn write_cameras(root: &Path, arrays: &[(String, Vec<f64>)]) {

@@ -29,6 +29,8 @@
 //! `EDGENERF_FUZZ_CASE_SECS` (default 20) is a hang: a watchdog prints the case and
 //! aborts the test process.
 
+mod common;
+
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -530,22 +532,11 @@ fn fuzz_llff() {
 
 #[test]
 fn fuzz_dtu() {
-    use glam::{DMat4, DVec3, DVec4};
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("image")).unwrap();
     let n = 29; // the 3-view DTU split trains on views 25, 22 and 28
-    let k = DMat4::from_cols(DVec4::new(10.0, 0.0, 0.0, 0.0), DVec4::new(0.0, 10.0, 0.0, 0.0), DVec4::new(4.0, 3.0, 1.0, 0.0), DVec4::W);
-    let mut mats: Vec<(String, Vec<f64>)> = Vec::new();
+    let mats = common::dtu_camera_matrices(n, 1.5);
     for i in 0..n {
-        let a = i as f64 * 0.05;
-        let c = DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin());
-        let f = (-c).normalize();
-        let r = f.cross(DVec3::Y).normalize();
-        let d = f.cross(r);
-        let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W).transpose() * DMat4::from_translation(-c);
-        let rows = |m: DMat4| (0..4).flat_map(|r| m.row(r).to_array()).collect::<Vec<f64>>();
-        mats.push((format!("world_mat_{i}"), rows(k * w2c)));
-        mats.push((format!("scale_mat_{i}"), rows(DMat4::from_scale(DVec3::splat(1.5)))));
         std::fs::write(dir.path().join(format!("image/{i:06}.png")), rgb_png(8, 6)).unwrap();
     }
     let path = dir.path().join("cameras.npz");
