@@ -334,26 +334,11 @@ impl Trainer {
         config.regnerf.resolve_for(&scene);
         config.optim.validate()?;
         let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
+        // Every range, reg / regnerf / priors and the batch sizes included.
         config.validate().map_err(config_error)?;
-        config.reg.validate().map_err(config_error)?;
-        config.regnerf.validate().map_err(config_error)?;
-        config.priors.validate().map_err(config_error)?;
         config.check_paths().map_err(config_error)?;
-        if config.train.rays_per_batch == 0 || config.train.max_samples == 0 {
-            return Err(config_error(format!(
-                "train.rays_per_batch = {} and train.max_samples = {} must both be positive",
-                config.train.rays_per_batch, config.train.max_samples
-            )));
-        }
         if scene.split.train.is_empty() {
             return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
-        }
-        let patches = config.train.batch == BatchKind::Patches;
-        if patches && !config.train.rays_per_batch.is_multiple_of(4) {
-            return Err(config_error(format!(
-                "train.rays_per_batch = {} must be a multiple of 4 with patch batches (4 rays per 2x2 patch)",
-                config.train.rays_per_batch
-            )));
         }
         if let Some(m) = &masks {
             let (w, h) = scene.image_size();
