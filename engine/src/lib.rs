@@ -6,6 +6,8 @@
 //! repository describes what each owns, the data flow of a training step, and which
 //! room may use which (checked by `tests/room_rules.rs`):
 //! * [`gpu`]: the wgpu/Vulkan context: adapter selection, buffers, kernels and dispatch;
+//! * [`rng`]: the deterministic generators (SplitMix64 on the host, the kernels' PCG
+//!   hash and its host mirror);
 //! * [`data`]: scenes, cameras and rays, dataset formats (Blender, LLFF, DTU) and splits;
 //! * [`edges`]: edge masks of the training images (Canny, external maps, dilation);
 //! * [`samples`]: the ray, sample and per-ray output layouts shared by the GPU rooms;
@@ -28,6 +30,7 @@ pub mod loss;
 pub mod metrics;
 pub mod optim;
 pub mod render;
+pub mod rng;
 pub mod samples;
 pub mod train;
 pub mod viz;

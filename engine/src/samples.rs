@@ -1,7 +1,8 @@
 //! The per-ray and per-sample buffers that flow between sampler, field and renderer.
 //!
-//! This module owns only layouts (Rust structs mirrored by `kernels/common/layout.wgsl`)
-//! and the buffers that carry them; each room fills its part:
+//! This module owns only layouts (Rust structs mirrored by `kernels/common/layout.wgsl`),
+//! the buffers that carry them, and the host copy of the kernels' ray/box slab test
+//! ([`GpuRay::box_range`]); each room fills its part:
 //!
 //! ```text
 //! rays (train/)      -> Sampler -> SampleBatch { ranges, samples, count }
@@ -35,6 +36,26 @@ pub struct GpuRay {
     pub t_min: f32,
     pub dir: [f32; 3],
     pub t_max: f32,
+}
+
+impl GpuRay {
+    /// `[t_near, t_far]` of the whole line `origin + t dir` against the box
+    /// `[min, max]` (slab test; empty when `t_near > t_far`, and `t_near` may be
+    /// negative). Bit for bit the kernels' `safe_inverse_dir` + `ray_box`
+    /// (`kernels/sampler/common.wgsl`): direction components under `1e-30` in
+    /// magnitude count as `+-1e-30`, so no `0 * inf` arises.
+    pub fn box_range(&self, min: [f32; 3], max: [f32; 3]) -> [f32; 2] {
+        let (mut near, mut far) = (f32::MIN, f32::MAX);
+        for k in 0..3 {
+            let d = self.dir[k];
+            let inv = if d.abs() < 1e-30 { if d >= 0.0 { 1e30 } else { -1e30 } } else { 1.0 / d };
+            let t1 = (min[k] - self.origin[k]) * inv;
+            let t2 = (max[k] - self.origin[k]) * inv;
+            near = near.max(t1.min(t2));
+            far = far.min(t1.max(t2));
+        }
+        [near, far]
+    }
 }
 
 /// Where the samples of one ray are.

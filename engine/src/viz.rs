@@ -29,13 +29,25 @@ pub fn turbo(t: f32) -> [f32; 3] {
     [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
 }
 
+/// Numpy's `quantile(values, q)` (linear interpolation between the two nearest ranks,
+/// `q` in `[0, 1]`); `None` when empty. Sorts `values`.
+pub fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_unstable_by(f64::total_cmp);
+    let pos = q.clamp(0.0, 1.0) * (values.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    Some(values[lo] + (pos - lo as f64) * (values[hi] - values[lo]))
+}
+
 /// Depth colourised near = blue .. far = red over the robust range of the pixels
 /// where `valid` (all when `None`); invalid pixels black. Returns the range used.
 pub fn depth_image(width: u32, height: u32, depth: &[f32], valid: Option<&[bool]>) -> (ImageRgb, [f32; 2]) {
     let is_valid = |i: usize| valid.is_none_or(|v| v[i]) && depth[i].is_finite();
     let mut vals: Vec<f64> = (0..depth.len()).filter(|&i| is_valid(i)).map(|i| depth[i] as f64).collect();
-    let lo = crate::metrics::quantile(&mut vals, 0.02).unwrap_or(0.0) as f32;
-    let hi = crate::metrics::quantile(&mut vals, 0.98).unwrap_or(1.0) as f32;
+    let lo = quantile(&mut vals, 0.02).unwrap_or(0.0) as f32;
+    let hi = quantile(&mut vals, 0.98).unwrap_or(1.0) as f32;
     let span = (hi - lo).max(1e-6);
     let mut img = ImageRgb::new(width, height);
     for (i, &d) in depth.iter().enumerate() {

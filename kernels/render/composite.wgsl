@@ -37,6 +37,7 @@
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
+//#include "common/hash.wgsl"
 
 struct Params {
     n_rays: u32,
@@ -90,17 +91,6 @@ var<private> params: Params;
 @group(0) @binding(8) var<storage, read_write> grad_rgb_density: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> grad_normal: array<vec4<f32>>;
 
-// PCG hash (Jarzynski & Olano 2020); mirrored by render::random_background.
-fn pcg_hash(v: u32) -> u32 {
-    let state = v * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-fn unit_float(h: u32) -> f32 {
-    return f32(h >> 8u) * (1.0 / 16777216.0);
-}
-
 // 1 - exp(-tau) without the cancellation of small tau: the series to tau^5 (relative
 // error below tau^5 / 720, under 1.4e-8 at 0.1), else the direct form.
 fn alpha_of(tau: f32, trans: f32) -> f32 {
@@ -117,7 +107,7 @@ fn background_for(ray: u32) -> vec3<f32> {
         }
         case 2u: {
             let base = pcg_hash(params.seed ^ pcg_hash(ray));
-            return vec3<f32>(unit_float(pcg_hash(base)), unit_float(pcg_hash(base + 1u)), unit_float(pcg_hash(base + 2u)));
+            return vec3<f32>(unit_f32(pcg_hash(base)), unit_f32(pcg_hash(base + 1u)), unit_f32(pcg_hash(base + 2u)));
         }
         default: {
             return vec3<f32>(0.0);

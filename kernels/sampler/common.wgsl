@@ -1,6 +1,8 @@
 // Helpers shared by the sampler kernels (owners in engine/src/sampler/): the occupancy
-// grid's geometry and cell lookup, a ray/box slab test, and the PCG hash RNG.
-// Include only; mirrors `GridGeom` in engine/src/sampler/grid.rs.
+// grid's geometry and cell lookup, a ray/box slab test, and (through common/hash.wgsl)
+// the PCG hash RNG. Include only; mirrors `GridGeom` in engine/src/sampler/grid.rs.
+
+//#include "common/hash.wgsl"
 
 // The occupancy grid: `res`^3 cells over [aabb_min, aabb_max], cell index
 // x + res * (y + res * z); occupancy bit of cell c is bit (c & 31) of word c >> 5.
@@ -45,21 +47,4 @@ fn ray_box(o: vec3<f32>, inv_d: vec3<f32>, bmin: vec3<f32>, bmax: vec3<f32>) -> 
     let tn = min(t1, t2);
     let tf = max(t1, t2);
     return vec2<f32>(max(max(tn.x, tn.y), tn.z), min(min(tf.x, tf.y), tf.z));
-}
-
-// PCG hash (Jarcho and Olano, "Hash Functions for GPU Rendering", 2020).
-fn pcg_hash(v: u32) -> u32 {
-    let state = v * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-// Random word number `k` of item `index` under `seed`.
-fn rand_u32(seed: u32, index: u32, k: u32) -> u32 {
-    return pcg_hash(pcg_hash(pcg_hash(seed) + index) + k);
-}
-
-// Uniform float in [0, 1) from the 24 high bits of a random word.
-fn unit_f32(bits: u32) -> f32 {
-    return f32(bits >> 8u) * (1.0 / 16777216.0);
 }

@@ -14,7 +14,7 @@ use std::sync::Once;
 use anyhow::{Context, anyhow, bail};
 use edgenerf::data::{ImageRgb, LoadOptions, Scene};
 use edgenerf::edges::mask_stem;
-use edgenerf::metrics::geometry::valid_depth;
+use edgenerf::metrics::valid_depth;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 

@@ -14,8 +14,7 @@ use anyhow::Context;
 use edgenerf::train::RunConfig;
 use serde::Serialize;
 
-use crate::cmd::bench::{RunRecord, read_record};
-use crate::suite::{RunSpec, Suite};
+use crate::suite::{RunRecord, RunSpec, Suite, read_record};
 
 /// One run of the sweep, as found on disk.
 #[derive(Clone, Debug, Serialize)]

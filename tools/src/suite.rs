@@ -1,6 +1,8 @@
 //! Benchmark suite files (`tools/suites/<name>.toml`, format in docs/bench.md): parsing,
 //! the `[quick]` variant, and expansion into the list of runs `edgenerf bench` trains,
-//! each with the `edgenerf train` arguments that make it.
+//! each with the `edgenerf train` arguments that make it, and the record each finished
+//! run leaves (`runs/<id>/bench.json`), which the bench command writes and the report
+//! reads.
 //!
 //! Invariants: unknown keys are errors (typos in a suite do not pass silently); run
 //! ids (`<scene>__<config>__r<k>`) are unique within a suite and stable across
@@ -10,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// A suite file.
 #[derive(Clone, Debug, Deserialize)]
@@ -319,4 +321,28 @@ impl Suite {
         a.extend(c.args.iter().cloned());
         (a, gt_edges)
     }
+}
+
+/// A run's record, `runs/<id>/bench.json`: written when the run has finished, either
+/// way.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub id: String,
+    pub scene: String,
+    pub scene_path: PathBuf,
+    pub config: String,
+    pub repeat: u32,
+    /// `ok` or `failed`.
+    pub status: String,
+    pub error: Option<String>,
+    /// Seconds of the whole run: training, evaluation and process start-ups.
+    pub wall_s: f64,
+    pub git_commit: String,
+    /// The `edgenerf train` command line (without `--out`).
+    pub train_args: Vec<String>,
+}
+
+/// Reads a run's record, if it has finished.
+pub fn read_record(dir: &Path) -> Option<RunRecord> {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).ok()?).ok()
 }

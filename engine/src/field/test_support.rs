@@ -5,9 +5,9 @@
 
 use glam::Vec3;
 
-use super::grid::SplitMix64;
 use super::Field;
 use crate::gpu::{Gpu, GpuBuffer};
+use crate::rng::SplitMix64;
 use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
 
 pub(crate) fn rng(seed: u64) -> SplitMix64 {
@@ -105,6 +105,42 @@ pub(crate) fn central_diff(params: &mut [f64], idx: usize, eps: f64, mut f: impl
     let lm = f(params);
     params[idx] = old;
     (lp - lm) / (2.0 * eps)
+}
+
+/// Checks the GPU's gradients of a scalar loss with respect to a hash-grid model's
+/// parameters (`table_grad`, `mlp_grad`, in the layout of `model.table` / `model.mlp`)
+/// against central differences of `loss` (the CPU pipeline), at 16 random touched
+/// table entries and 16 random nonzero MLP weights (`seed` picks them). Tolerance:
+/// `3e-3` of the largest gradient plus 2 % of the difference quotient.
+pub(crate) fn check_grid_grads_against_fd(
+    what: &str,
+    model: &super::grid::reference::GridModel,
+    table_grad: &[f32],
+    mlp_grad: &[f32],
+    seed: u64,
+    loss: impl Fn(&super::grid::reference::GridModel) -> f64,
+) {
+    let mut r = rng(seed);
+    let touched: Vec<usize> = (0..table_grad.len()).filter(|&i| table_grad[i] != 0.0).collect();
+    let nonzero_mlp: Vec<usize> = (0..mlp_grad.len()).filter(|&i| mlp_grad[i] != 0.0).collect();
+    assert!(!touched.is_empty() && !nonzero_mlp.is_empty(), "{what}: no gradient reached the table or the MLP");
+    let mut checks: Vec<(bool, usize)> = (0..16).map(|_| (true, touched[r.below(touched.len() as u64) as usize])).collect();
+    checks.extend((0..16).map(|_| (false, nonzero_mlp[r.below(nonzero_mlp.len() as u64) as usize])));
+    let scale = table_grad.iter().chain(mlp_grad).fold(0.0f32, |a, v| a.max(v.abs())) as f64;
+    let eps = 1e-5;
+    for (is_table, idx) in checks {
+        let (mut plus, mut minus) = (model.clone(), model.clone());
+        let (p, m) = if is_table { (&mut plus.table, &mut minus.table) } else { (&mut plus.mlp, &mut minus.mlp) };
+        p[idx] += eps;
+        m[idx] -= eps;
+        let fd = (loss(&plus) - loss(&minus)) / (2.0 * eps);
+        let got = if is_table { table_grad[idx] } else { mlp_grad[idx] } as f64;
+        assert!(
+            (got - fd).abs() <= 3e-3 * scale + 2e-2 * fd.abs(),
+            "{what} {}[{idx}]: GPU {got} vs finite differences {fd} (scale {scale})",
+            if is_table { "table" } else { "mlp" }
+        );
+    }
 }
 
 /// Prints forward / backward / density-query throughput of `field` on `n` random

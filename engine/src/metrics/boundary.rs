@@ -31,9 +31,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::MetricsError;
 use super::distance::distance_transform;
-use super::geometry::valid_depth;
+use super::{MetricsError, valid_depth};
 use crate::edges::{CannyParams, canny};
 
 /// Parameters of the depth boundary error.

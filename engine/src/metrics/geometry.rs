@@ -47,7 +47,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::MetricsError;
+use super::{MetricsError, valid_depth, valid_normal};
 use super::boundary::{DbeParams, DepthBoundaryError, depth_boundary_error};
 use super::distance::squared_distance_transform;
 
@@ -153,16 +153,6 @@ pub struct GeometryMetrics {
     pub normal: Option<Regions<NormalErrors>>,
     /// Present when both GT and predicted depth are.
     pub boundary: Option<DepthBoundaryError>,
-}
-
-/// `true` where a ground-truth depth is a surface: `> 0` and finite.
-pub fn valid_depth(g: f32) -> bool {
-    g > 0.0 && g.is_finite()
-}
-
-/// `true` where a ground-truth normal is present: finite and not zero.
-pub fn valid_normal(n: &[f32; 3]) -> bool {
-    n.iter().all(|c| c.is_finite()) && n.iter().any(|&c| c != 0.0)
 }
 
 /// Angle in degrees between a ground-truth normal and a prediction of any length

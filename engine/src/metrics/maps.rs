@@ -14,7 +14,8 @@
 //! metric's.
 
 use super::MetricsError;
-use super::geometry::{normal_angle_deg, valid_depth, valid_normal};
+use super::geometry::normal_angle_deg;
+use super::{valid_depth, valid_normal};
 use crate::data::ImageRgb;
 use crate::viz::{grey_image, turbo};
 

@@ -44,6 +44,9 @@ pub use geometry::{
 };
 pub use image::{ImageMetrics, image_metrics, masked_image_metrics, psnr, psnr_from_mse, ssim};
 pub use lpips::{Lpips, LpipsError, LpipsNet};
+/// Numpy's quantile; it lives in [`crate::viz`], whose robust colour ranges need it and
+/// which may not import this room.
+pub use crate::viz::quantile;
 
 /// Inputs a metric cannot be computed on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -68,16 +71,14 @@ impl MetricsError {
     }
 }
 
-/// Numpy's `quantile(values, q)` (linear interpolation between the two nearest ranks,
-/// `q` in `[0, 1]`); `None` when empty. Sorts `values`.
-pub fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    values.sort_unstable_by(f64::total_cmp);
-    let pos = q.clamp(0.0, 1.0) * (values.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    Some(values[lo] + (pos - lo as f64) * (values[hi] - values[lo]))
+/// `true` where a ground-truth depth is a surface: `> 0` and finite.
+pub fn valid_depth(g: f32) -> bool {
+    g > 0.0 && g.is_finite()
+}
+
+/// `true` where a ground-truth normal is present: finite and not zero.
+pub fn valid_normal(n: &[f32; 3]) -> bool {
+    n.iter().all(|c| c.is_finite()) && n.iter().any(|&c| c != 0.0)
 }
 
 /// Numpy's median: the mean of the two middle values for an even count.

@@ -3,24 +3,11 @@
 
 use super::*;
 use crate::gpu::{Gpu, GpuBuffer, test_gpu};
+use crate::rng::SplitMix64;
 
-/// xorshift64*: deterministic test data without a dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    /// Uniform in [-1, 1).
-    fn sym(&mut self) -> f32 {
-        ((self.next_u64() >> 40) as f64 / (1u64 << 24) as f64 * 2.0 - 1.0) as f32
-    }
-    fn vec(&mut self, n: usize, scale: f32) -> Vec<f32> {
-        (0..n).map(|_| self.sym() * scale).collect()
-    }
+/// `n` values uniform in `[-scale, scale)`.
+fn random_vec(rng: &mut SplitMix64, n: usize, scale: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.uniform(scale as f64) as f32).collect()
 }
 
 fn gpu() -> Gpu {
@@ -184,7 +171,7 @@ impl TestGroup {
 }
 
 /// Three groups exercising defaults + sparse, overrides + L2, AdamW.
-fn make_groups(gpu: &Gpu, rng: &mut Rng) -> Vec<TestGroup> {
+fn make_groups(gpu: &Gpu, rng: &mut SplitMix64) -> Vec<TestGroup> {
     let cfg = AdamConfig::default();
     let def = RefHyper {
         lr_scale: 1.0,
@@ -194,8 +181,8 @@ fn make_groups(gpu: &Gpu, rng: &mut Rng) -> Vec<TestGroup> {
         wd: WeightDecay::None,
         sparse: false,
     };
-    let mk = |name, n: usize, hyper, overrides, rng: &mut Rng| {
-        let p = rng.vec(n, 1.0);
+    let mk = |name, n: usize, hyper, overrides, rng: &mut SplitMix64| {
+        let p = random_vec(rng, n, 1.0);
         TestGroup {
             name,
             params: GpuBuffer::from_slice(gpu, name, &p).unwrap(),
@@ -228,12 +215,13 @@ fn refs_of(gpu: &Gpu, groups: &[TestGroup]) -> Vec<RefGroup> {
     groups.iter().map(|g| RefGroup::new(&g.params.read(gpu).unwrap(), g.hyper)).collect()
 }
 
-/// Random gradients for a step; about a third exactly zero in sparse groups.
-fn random_grads(rng: &mut Rng, g: &TestGroup, scale: f32) -> Vec<f32> {
+/// Random gradients for a step. In sparse groups about a third are exactly zero, and
+/// every 7th entry always is (entries no step touches, which must stay bit-identical).
+fn random_grads(rng: &mut SplitMix64, g: &TestGroup, scale: f32) -> Vec<f32> {
     (0..g.params.len())
-        .map(|_| {
-            let x = rng.sym() * scale;
-            if g.hyper.sparse && rng.sym() < -0.33 { 0.0 } else { x }
+        .map(|i| {
+            let x = rng.uniform(1.0) as f32 * scale;
+            if g.hyper.sparse && (i % 7 == 3 || rng.uniform(1.0) < -0.33) { 0.0 } else { x }
         })
         .collect()
 }
@@ -250,7 +238,7 @@ fn check_against_ref(gpu: &Gpu, adam: &Adam, groups: &[TestGroup], refs: &[RefGr
 #[test]
 fn adam_matches_cpu_reference() {
     let gpu = gpu();
-    let mut rng = Rng(0x1234_5678_9abc_def1);
+    let mut rng = SplitMix64::new(0x1234_5678_9abc_def1);
     let groups = make_groups(&gpu, &mut rng);
     let initial: Vec<Vec<f32>> = groups.iter().map(|g| g.params.read(&gpu).unwrap()).collect();
     let mut refs = refs_of(&gpu, &groups);
@@ -294,7 +282,7 @@ fn adam_matches_cpu_reference() {
 #[test]
 fn adam_fused_clip_matches_reference_and_in_place_clip() {
     let gpu = gpu();
-    let mut rng = Rng(99);
+    let mut rng = SplitMix64::new(99);
     let fused = make_groups(&gpu, &mut rng);
     // A second copy with the same initial parameters, clipped in place.
     let inplace: Vec<TestGroup> = fused
@@ -357,10 +345,10 @@ fn adam_fused_clip_matches_reference_and_in_place_clip() {
 #[test]
 fn adam_skips_a_step_with_nonfinite_gradients() {
     let gpu = gpu();
-    let mut rng = Rng(7);
-    let p0 = rng.vec(300, 1.0);
+    let mut rng = SplitMix64::new(7);
+    let p0 = random_vec(&mut rng, 300, 1.0);
     let params = GpuBuffer::from_slice(&gpu, "p", &p0).unwrap();
-    let grads = GpuBuffer::from_slice(&gpu, "g", &rng.vec(300, 1.0)).unwrap();
+    let grads = GpuBuffer::from_slice(&gpu, "g", &random_vec(&mut rng, 300, 1.0)).unwrap();
     let groups = [ParamGroup::new("p", &params, &grads)];
     let mut adam = Adam::for_groups(&gpu, &groups, AdamConfig::default()).unwrap();
     let mut norm = GradNorm::new(&gpu).unwrap();
@@ -371,7 +359,7 @@ fn adam_skips_a_step_with_nonfinite_gradients() {
     let m1 = adam.moments("p").unwrap().0.read(&gpu).unwrap();
     assert_ne!(p1, p0);
     // A NaN anywhere: the whole step is skipped on the GPU.
-    let mut bad = rng.vec(300, 1.0);
+    let mut bad = random_vec(&mut rng, 300, 1.0);
     bad[123] = f32::NAN;
     grads.write(&gpu, &bad);
     let stats = norm.compute(&gpu, &ParamGroup::grads_of(&groups), &ClipConfig::regnerf()).unwrap();
@@ -393,7 +381,7 @@ fn adam_skips_a_step_with_nonfinite_gradients() {
 #[test]
 fn adam_state_roundtrips_through_export_import() {
     let gpu = gpu();
-    let mut rng = Rng(42);
+    let mut rng = SplitMix64::new(42);
     let groups_a = make_groups(&gpu, &mut rng);
     let groups_b: Vec<TestGroup> = groups_a
         .iter()
@@ -409,7 +397,7 @@ fn adam_state_roundtrips_through_export_import() {
     let vb: Vec<_> = groups_b.iter().map(TestGroup::as_group).collect();
     let mut a = Adam::for_groups(&gpu, &va, AdamConfig::default()).unwrap();
     let mut b = Adam::for_groups(&gpu, &vb, AdamConfig::default()).unwrap();
-    let grads_for = |rng: &mut Rng| -> Vec<Vec<f32>> { groups_a.iter().map(|g| random_grads(rng, g, 1.0)).collect() };
+    let grads_for = |rng: &mut SplitMix64| -> Vec<Vec<f32>> { groups_a.iter().map(|g| random_grads(rng, g, 1.0)).collect() };
     for _ in 0..3 {
         let gs = grads_for(&mut rng);
         for (g, x) in groups_a.iter().zip(&gs) {
@@ -498,11 +486,11 @@ fn adam_rejects_mismatched_groups() {
 #[test]
 fn global_norm_matches_cpu_on_awkward_sizes() {
     let gpu = gpu();
-    let mut rng = Rng(5);
+    let mut rng = SplitMix64::new(5);
     let mut norm = GradNorm::new(&gpu).unwrap();
     let mut worst = 0.0f64;
     for n in [1usize, 63, 64, 65, 255, 256, 257, 2047, 2048, 2049, 1_000_003] {
-        let data = rng.vec(n, 3.0);
+        let data = random_vec(&mut rng, n, 3.0);
         let buf = GpuBuffer::from_slice(&gpu, "g", &data).unwrap();
         let stats = norm.compute(&gpu, &[&buf], &ClipConfig::default()).unwrap();
         let (raw, _, bad, amax) = cpu_norm(&[&data], 0.0);
@@ -520,7 +508,7 @@ fn global_norm_matches_cpu_on_awkward_sizes() {
     eprintln!("worst relative norm error: {worst:e}");
     // Several groups at once (one empty), including a group past the partials' initial capacity.
     let sizes = [65usize, 0, 1_000_003, 1, 3 * 2048 * 1024 + 5];
-    let datas: Vec<Vec<f32>> = sizes.iter().map(|&n| rng.vec(n, 0.01)).collect();
+    let datas: Vec<Vec<f32>> = sizes.iter().map(|&n| random_vec(&mut rng, n, 0.01)).collect();
     let bufs: Vec<_> = datas.iter().map(|d| GpuBuffer::from_slice(&gpu, "g", d).unwrap()).collect();
     let refs: Vec<&GpuBuffer<f32>> = bufs.iter().collect();
     let stats = norm.compute(&gpu, &refs, &ClipConfig::default()).unwrap();
@@ -539,10 +527,10 @@ fn global_norm_matches_cpu_on_awkward_sizes() {
 #[test]
 fn nonfinite_gradients_are_flagged() {
     let gpu = gpu();
-    let mut rng = Rng(11);
+    let mut rng = SplitMix64::new(11);
     let mut norm = GradNorm::new(&gpu).unwrap();
     let n = 1_000_003;
-    let clean = rng.vec(n, 1.0);
+    let clean = random_vec(&mut rng, n, 1.0);
     for (positions, value) in [
         (vec![0usize], f32::NAN),
         (vec![n - 1], f32::INFINITY),
@@ -579,9 +567,9 @@ fn nonfinite_gradients_are_flagged() {
 #[test]
 fn clipping_by_value_and_global_norm() {
     let gpu = gpu();
-    let mut rng = Rng(13);
+    let mut rng = SplitMix64::new(13);
     let mut norm = GradNorm::new(&gpu).unwrap();
-    let datas = [rng.vec(70_000, 0.2), rng.vec(129, 2.0)];
+    let datas = [random_vec(&mut rng, 70_000, 0.2), random_vec(&mut rng, 129, 2.0)];
     for clip in [
         ClipConfig { max_norm: 1.0, max_value: 0.0, norm_eps: f32::EPSILON },
         ClipConfig { max_norm: 0.1, max_value: 0.1, norm_eps: f32::EPSILON },

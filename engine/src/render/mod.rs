@@ -87,6 +87,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, Kernel, KernelSpec};
+use crate::rng::{pcg_hash, unit_f32};
 use crate::samples::{FieldGrads, FieldOutputs, RayOutput, SampleBatch};
 
 /// Bind layout of `composite.wgsl::forward`: params, ranges, samples, rgb + density,
@@ -371,22 +372,11 @@ impl Renderer {
     }
 }
 
-/// PCG hash (Jarzynski & Olano 2020), as in `composite.wgsl`.
-pub fn pcg_hash(v: u32) -> u32 {
-    let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
-    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
-    (word >> 22) ^ word
-}
-
-fn unit_float(h: u32) -> f32 {
-    (h >> 8) as f32 * (1.0 / 16_777_216.0)
-}
-
 /// The random background of ray `ray` for launch seed `seed`: bit-identical to the
 /// kernel's, uniform in `[0, 1)^3`.
 pub fn random_background(seed: u32, ray: u32) -> [f32; 3] {
     let base = pcg_hash(seed ^ pcg_hash(ray));
-    [unit_float(pcg_hash(base)), unit_float(pcg_hash(base.wrapping_add(1))), unit_float(pcg_hash(base.wrapping_add(2)))]
+    [0, 1, 2].map(|k| unit_f32(pcg_hash(base.wrapping_add(k))))
 }
 
 /// The background colour the forward pass composites behind ray `ray`.

@@ -17,29 +17,8 @@
 use super::reference::{self, RefRay, RefSample};
 use super::*;
 use crate::gpu::test_gpu;
+use crate::rng::SplitMix64;
 use crate::samples::{GpuSample, SampleRange};
-
-/// SplitMix64: deterministic test data without a dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.uniform()
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        (self.next_u64() % n as u64) as u32
-    }
-}
 
 /// A batch on the host, in the kernels' layout.
 #[derive(Clone)]
@@ -76,7 +55,7 @@ impl HostBatch {
 /// Random rays: ~15% empty, up to `max_count` samples, random gaps between ranges
 /// (filled with garbage the kernels must not touch), densities from transparent to
 /// opaque, normals unit or zero, `w` components garbage.
-fn random_batch(rng: &mut Rng, n_rays: u32, max_count: u32) -> HostBatch {
+fn random_batch(rng: &mut SplitMix64, n_rays: u32, max_count: u32) -> HostBatch {
     let mut b = HostBatch { ranges: vec![], samples: vec![], density: vec![], rgb: vec![], normal: vec![] };
     let garbage = |b: &mut HostBatch| {
         b.samples.push(GpuSample { pos: [9.0; 3], t: -7.0, dir: [9.0; 3], dt: 5.0 });
@@ -88,24 +67,24 @@ fn random_batch(rng: &mut Rng, n_rays: u32, max_count: u32) -> HostBatch {
         for _ in 0..rng.below(3) {
             garbage(&mut b);
         }
-        let count = if rng.uniform() < 0.15 { 0 } else { 1 + rng.below(max_count) };
+        let count = if rng.unit_f32() < 0.15 { 0 } else { 1 + rng.below(max_count as u64) as u32 };
         b.ranges.push(SampleRange { start: b.density.len() as u32, count });
         // Per-ray density scale: some rays stay transparent, some terminate early.
         let scale = [0.3f32, 3.0, 30.0][rng.below(3) as usize];
-        let mut t = rng.range(0.1, 2.0);
+        let mut t = rng.range_f32(0.1, 2.0);
         for _ in 0..count {
-            let dt = rng.range(0.002, 0.08);
+            let dt = rng.range_f32(0.002, 0.08);
             t += dt * 0.5;
-            b.samples.push(GpuSample { pos: [rng.uniform(); 3], t, dir: [0.0, 0.0, 1.0], dt });
-            t += dt * 0.5 + if rng.uniform() < 0.3 { rng.range(0.0, 0.1) } else { 0.0 };
-            let u = rng.uniform();
-            let sigma = if u < 0.25 { 0.0 } else if u < 0.9 { scale * rng.range(0.0, 1.0) } else { scale * rng.range(5.0, 50.0) };
+            b.samples.push(GpuSample { pos: [rng.unit_f32(); 3], t, dir: [0.0, 0.0, 1.0], dt });
+            t += dt * 0.5 + if rng.unit_f32() < 0.3 { rng.range_f32(0.0, 0.1) } else { 0.0 };
+            let u = rng.unit_f32();
+            let sigma = if u < 0.25 { 0.0 } else if u < 0.9 { scale * rng.range_f32(0.0, 1.0) } else { scale * rng.range_f32(5.0, 50.0) };
             b.density.push(sigma);
-            b.rgb.push([rng.uniform(), rng.uniform(), rng.uniform(), 7.0]);
-            let n = if rng.uniform() < 0.1 {
+            b.rgb.push([rng.unit_f32(), rng.unit_f32(), rng.unit_f32(), 7.0]);
+            let n = if rng.unit_f32() < 0.1 {
                 [0.0; 3]
             } else {
-                let v = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+                let v = [rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0)];
                 let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
                 v.map(|x| x / l)
             };
@@ -264,7 +243,7 @@ fn check_forward(h: &HostBatch, cfg: &RenderConfig, seed: u32, fwd: &Forward) ->
 #[test]
 fn forward_matches_reference_for_every_background() {
     let gpu = test_gpu(false);
-    let mut rng = Rng(1);
+    let mut rng = SplitMix64::new(1);
     let h = random_batch(&mut rng, 2000, 64);
     let up = upload(&gpu, &h);
     let configs = [
@@ -411,7 +390,7 @@ fn check_backward_fd(cfg: RenderConfig, seed: u64) {
 
 fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
     let gpu = test_gpu(false);
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64::new(seed);
     let h = random_batch(&mut rng, 300, 48);
     let up = upload(&gpu, &h);
     let mut renderer = Renderer::new(&gpu, cfg).unwrap();
@@ -421,10 +400,10 @@ fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
     let fwd = run_forward(&gpu, &renderer, &up, 5);
     let d_rays: Vec<RayOutput> = (0..h.n_rays())
         .map(|_| RayOutput {
-            rgb: [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)],
-            opacity: rng.range(-1.0, 1.0),
-            normal: [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)],
-            depth: rng.range(-1.0, 1.0),
+            rgb: [rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0)],
+            opacity: rng.range_f32(-1.0, 1.0),
+            normal: [rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0)],
+            depth: rng.range_f32(-1.0, 1.0),
         })
         .collect();
     let t0 = std::time::Instant::now();
@@ -524,7 +503,7 @@ fn backward_with_priors_matches_finite_differences() {
 fn priors_off_leave_the_gradients_unchanged() {
     // Zero lambdas with a live occlusion range: the backward is the plain one, bit for bit.
     let gpu = test_gpu(false);
-    let h = random_batch(&mut Rng(16), 200, 32);
+    let h = random_batch(&mut SplitMix64::new(16), 200, 32);
     let up = upload(&gpu, &h);
     let plain = Renderer::new(&gpu, RenderConfig::default()).unwrap();
     let mut off = Renderer::new(&gpu, RenderConfig::default()).unwrap();
@@ -545,19 +524,19 @@ fn backward_matches_finite_differences_random_background_no_termination() {
 #[test]
 fn backward_accumulates_when_asked() {
     let gpu = test_gpu(false);
-    let mut rng = Rng(21);
+    let mut rng = SplitMix64::new(21);
     let h = random_batch(&mut rng, 200, 32);
     let up = upload(&gpu, &h);
     let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
     let fwd = run_forward(&gpu, &renderer, &up, 0);
     let d_rays: Vec<RayOutput> =
-        (0..h.n_rays()).map(|_| RayOutput { rgb: [rng.uniform(); 3], opacity: 0.5, normal: [0.3; 3], depth: -0.2 }).collect();
+        (0..h.n_rays()).map(|_| RayOutput { rgb: [rng.unit_f32(); 3], opacity: 0.5, normal: [0.3; 3], depth: -0.2 }).collect();
     let n = h.density.len();
     let fresh = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &sentinel_grads(n), false);
     let init = Grads {
-        density: (0..n).map(|_| rng.range(-1.0, 1.0)).collect(),
-        rgb: (0..n).map(|_| [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0]).collect(),
-        normal: (0..n).map(|_| [rng.range(-1.0, 1.0); 4]).collect(),
+        density: (0..n).map(|_| rng.range_f32(-1.0, 1.0)).collect(),
+        rgb: (0..n).map(|_| [rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), 0.0]).collect(),
+        normal: (0..n).map(|_| [rng.range_f32(-1.0, 1.0); 4]).collect(),
     };
     let acc = run_backward(&gpu, &renderer, &up, &fwd, &d_rays, &init, true);
     let inside = h.in_range();
@@ -621,7 +600,7 @@ fn early_termination_is_the_same_forward_and_backward() {
 fn undersized_buffers_are_errors() {
     let gpu = test_gpu(false);
     let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
-    let mut rng = Rng(3);
+    let mut rng = SplitMix64::new(3);
     let h = random_batch(&mut rng, 10, 8);
     let up = upload(&gpu, &h);
     let small = RenderOutputs::new(&gpu, 5, None).unwrap();
@@ -651,7 +630,7 @@ fn config_round_trips_through_json() {
 fn render_throughput() {
     let gpu = test_gpu(false);
     let renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
-    let mut rng = Rng(99);
+    let mut rng = SplitMix64::new(99);
     let h = random_batch(&mut rng, 4096, 256);
     let up = upload(&gpu, &h);
     let out = RenderOutputs::new(&gpu, up.batch.n_rays, None).unwrap();

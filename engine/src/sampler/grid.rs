@@ -418,21 +418,7 @@ impl OccupancyGrid {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-
-    /// CPU mirror of `pcg_hash` / `rand_u32` / `unit_f32` in `kernels/sampler/common.wgsl`.
-    pub(crate) fn pcg_hash(v: u32) -> u32 {
-        let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
-        let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
-        (word >> 22) ^ word
-    }
-
-    pub(crate) fn rand_u32(seed: u32, index: u32, k: u32) -> u32 {
-        pcg_hash(pcg_hash(pcg_hash(seed).wrapping_add(index)).wrapping_add(k))
-    }
-
-    pub(crate) fn unit_f32(bits: u32) -> f32 {
-        (bits >> 8) as f32 * (1.0 / 16777216.0)
-    }
+    use crate::rng::{rand_u32, unit_f32};
 
     /// CPU reference of one update (module doc): the query cells, then EMA, mean and
     /// bitfield. Returns the cells queried.

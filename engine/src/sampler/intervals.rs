@@ -114,22 +114,8 @@ pub(crate) mod tests {
 
     use super::super::SamplerConfig;
     use super::super::bricks::BrickBvh;
-    use super::super::grid::tests::{rand_u32, unit_f32};
+    use crate::rng::{rand_u32, unit_f32};
     use super::*;
-
-    /// CPU mirror of `safe_inverse_dir` + `ray_box` in `kernels/sampler/common.wgsl`.
-    fn ray_box(ray: &GpuRay, b: &Aabb) -> [f32; 2] {
-        let (mut tn, mut tf) = (f32::MIN, f32::MAX);
-        for k in 0..3 {
-            let d = ray.dir[k];
-            let inv = if d.abs() < 1e-30 { if d >= 0.0 { 1e30 } else { -1e30 } } else { 1.0 / d };
-            let t1 = (b.min[k] - ray.origin[k]) * inv;
-            let t2 = (b.max[k] - ray.origin[k]) * inv;
-            tn = tn.max(t1.min(t2));
-            tf = tf.min(t1.max(t2));
-        }
-        [tn, tf]
-    }
 
     /// The reference: sort, merge touching, close smallest gaps over the cap.
     fn merge(mut raw: Vec<[f32; 2]>, cap: usize) -> Vec<[f32; 2]> {
@@ -152,7 +138,7 @@ pub(crate) mod tests {
     }
 
     fn clip(ray: &GpuRay, b: &Aabb) -> Option<[f32; 2]> {
-        let h = ray_box(ray, b);
+        let h = ray.box_range(b.min.into(), b.max.into());
         let iv = [h[0].max(ray.t_min), h[1].min(ray.t_max)];
         (iv[0] < iv[1]).then_some(iv)
     }

@@ -203,7 +203,7 @@ impl Sampler {
 mod tests {
     use glam::Vec3;
 
-    use super::super::grid::tests::{rand_u32, unit_f32};
+    use crate::rng::{rand_u32, unit_f32};
     use super::*;
     use crate::samples::{GpuSample, SampleRange};
 

@@ -564,7 +564,7 @@ impl Trainer {
         let n_all = n + n_tv;
         self.bufs.rays.write(&gpu, &rays);
         self.targets.write(&gpu, &targets);
-        let jitter = (rays::Rng::new(seed ^ step.rotate_left(17)).next_u32()) | 1;
+        let jitter = (crate::rng::SplitMix64::mixed(seed ^ step.rotate_left(17)).next_u32()) | 1;
         self.model.sample(&gpu, &self.bufs, Some(jitter))?;
         self.end_stage(Stage::Sampler)?;
         self.model.field.forward(&gpu, &self.bufs.batch, &self.bufs.field_out, normals)?;

@@ -38,7 +38,8 @@ use glam::{Mat3, Mat4, Vec3};
 use crate::data::{Camera, Scene, SceneFormat};
 use crate::samples::GpuRay;
 
-use super::rays::{Rng, to_gpu_ray};
+use super::rays::to_gpu_ray;
+use crate::rng::SplitMix64;
 
 /// How random poses are placed (see the module doc).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -66,12 +67,12 @@ impl PoseKind {
 }
 
 /// Uniform in `[0, 1)`.
-fn unit(rng: &mut Rng) -> f32 {
+fn unit(rng: &mut SplitMix64) -> f32 {
     (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32
 }
 
 /// Standard normal (Box-Muller).
-fn normal(rng: &mut Rng) -> f32 {
+fn normal(rng: &mut SplitMix64) -> f32 {
     let u1 = 1.0 - unit(rng);
     let u2 = unit(rng);
     (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
@@ -133,10 +134,10 @@ fn mean_camera(cameras: &[Camera], c2w: Mat4) -> Camera {
 pub fn random_poses(scene: &Scene, kind: PoseKind, n: usize, seed: u64) -> Vec<Camera> {
     let cams: Vec<Camera> = scene.train_views().map(|v| v.camera).collect();
     assert!(!cams.is_empty(), "random poses need training cameras");
-    let mut rng = Rng::new(seed ^ 0x5245_474E_4552_4621);
+    let mut rng = SplitMix64::mixed(seed ^ 0x5245_474E_4552_4621);
     let (mean, rot, up) = average_pose(&cams);
     let r = camera_box(&cams, mean, rot);
-    let in_box = |rng: &mut Rng| mean + rot * (r * Vec3::new(2.0 * unit(rng) - 1.0, 2.0 * unit(rng) - 1.0, 2.0 * unit(rng) - 1.0));
+    let in_box = |rng: &mut SplitMix64| mean + rot * (r * Vec3::new(2.0 * unit(rng) - 1.0, 2.0 * unit(rng) - 1.0, 2.0 * unit(rng) - 1.0));
     let focus = focus_point(&cams);
     (0..n)
         .map(|_| {
@@ -171,7 +172,7 @@ pub fn random_poses(scene: &Scene, kind: PoseKind, n: usize, seed: u64) -> Vec<C
 /// `all_images` batching), row-major within a patch, in the field's space (NDC for
 /// forward-facing scenes), with their `z_scale`. A pure function of `seed` and `step`.
 pub fn patch_rays(scene: &Scene, pool: &[Camera], n_patches: u32, patch_size: u32, seed: u64, step: u64) -> (Vec<GpuRay>, Vec<f32>) {
-    let mut rng = Rng::new(seed.wrapping_mul(0x9FB2_1C65_1E98_DF25) ^ step.rotate_left(29) ^ 0x7456);
+    let mut rng = SplitMix64::mixed(seed.wrapping_mul(0x9FB2_1C65_1E98_DF25) ^ step.rotate_left(29) ^ 0x7456);
     let n = (n_patches * patch_size * patch_size) as usize;
     let (mut rays, mut z_scales) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for _ in 0..n_patches {
@@ -297,7 +298,7 @@ mod tests {
         let cam = |p: Vec3| Camera { width: 8, height: 8, fx: 8.0, fy: 8.0, cx: 4.0, cy: 4.0, c2w: look_at(p, Vec3::new(1.0, 2.0, 3.0), Vec3::Z) };
         let f = focus_point(&[cam(Vec3::new(5.0, 0.0, 3.0)), cam(Vec3::new(0.0, 6.0, 4.0)), cam(Vec3::new(-3.0, -2.0, 6.0))]);
         assert!((f - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-3, "{f}");
-        let mut rng = Rng::new(1);
+        let mut rng = SplitMix64::mixed(1);
         let xs: Vec<f32> = (0..4000).map(|_| normal(&mut rng)).collect();
         let mean = xs.iter().sum::<f32>() / 4000.0;
         let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / 4000.0;

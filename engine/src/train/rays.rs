@@ -14,42 +14,14 @@ use glam::Vec3;
 
 use crate::data::{Ray, Scene};
 use crate::edges::EdgeMask;
+use crate::rng::SplitMix64;
 use crate::samples::GpuRay;
 
-/// SplitMix64: a small, well-mixed deterministic generator.
-#[derive(Clone, Debug)]
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `0..n`.
-    pub fn below(&mut self, n: u64) -> u64 {
-        ((self.next_u64() as u128 * n as u128) >> 64) as u64
-    }
-
-    pub fn next_u32(&mut self) -> u32 {
-        (self.next_u64() >> 32) as u32
-    }
-}
-
-/// `[t_enter, t_exit]` of a ray against an AABB (slab test), if it hits.
+/// `[t_enter, t_exit]` of a ray (`t >= 0`) against an AABB, if it hits: the kernels'
+/// slab test ([`GpuRay::box_range`]).
 pub fn ray_aabb(origin: Vec3, dir: Vec3, aabb: [Vec3; 2]) -> Option<(f32, f32)> {
-    let inv = dir.recip();
-    let t0 = (aabb[0] - origin) * inv;
-    let t1 = (aabb[1] - origin) * inv;
-    let enter = t0.min(t1).max_element();
-    let exit = t0.max(t1).min_element();
+    let line = GpuRay { origin: origin.into(), dir: dir.into(), ..GpuRay::default() };
+    let [enter, exit] = line.box_range(aabb[0].into(), aabb[1].into());
     (exit >= enter.max(0.0)).then_some((enter.max(0.0), exit))
 }
 
@@ -114,8 +86,8 @@ impl PixelBatch {
     }
 }
 
-fn step_rng(seed: u64, step: u64) -> Rng {
-    Rng::new(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step)
+fn step_rng(seed: u64, step: u64) -> SplitMix64 {
+    SplitMix64::mixed(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step)
 }
 
 /// Draws `n` training pixels for `step`, uniform over the pixels of all training views
@@ -209,8 +181,8 @@ mod tests {
 
     #[test]
     fn rng_is_deterministic_and_roughly_uniform() {
-        let mut a = Rng::new(5);
-        let mut b = Rng::new(5);
+        let mut a = SplitMix64::mixed(5);
+        let mut b = SplitMix64::mixed(5);
         let xs: Vec<u64> = (0..1000).map(|_| a.below(10)).collect();
         let ys: Vec<u64> = (0..1000).map(|_| b.below(10)).collect();
         assert_eq!(xs, ys);

@@ -23,9 +23,8 @@ use edgenerf::data::{LoadOptions, Scene};
 use edgenerf::edges::{EdgeMask, mask_stem};
 use edgenerf::metrics::{EdgeMapParams, gt_edge_map};
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::{Deserialize, Serialize};
 
-use crate::suite::{RunSpec, Suite};
+use crate::suite::{RunRecord, RunSpec, Suite, read_record};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -46,25 +45,6 @@ pub struct Args {
     /// LPIPS networks of each run's `eval` (default: those whose weights are installed).
     #[arg(long, value_enum)]
     lpips: Option<crate::cmd::eval::LpipsChoice>,
-}
-
-/// A run's record, `runs/<id>/bench.json`: written when the run has finished, either
-/// way.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct RunRecord {
-    pub id: String,
-    pub scene: String,
-    pub scene_path: PathBuf,
-    pub config: String,
-    pub repeat: u32,
-    /// `ok` or `failed`.
-    pub status: String,
-    pub error: Option<String>,
-    /// Seconds of the whole run: training, evaluation and process start-ups.
-    pub wall_s: f64,
-    pub git_commit: String,
-    /// The `edgenerf train` command line (without `--out`).
-    pub train_args: Vec<String>,
 }
 
 /// The repository root: the nearest ancestor of the working directory holding
@@ -161,11 +141,6 @@ fn run_one(exe: &Path, adapter: Option<&str>, lpips: Option<&str>, spec: &RunSpe
         eval.extend(["--lpips".into(), l.to_string()]);
     }
     subprocess(exe, &eval, &dir.join("eval.log"), "eval")
-}
-
-/// Reads a run's record, if it has finished.
-pub fn read_record(dir: &Path) -> Option<RunRecord> {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).ok()?).ok()
 }
 
 pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {

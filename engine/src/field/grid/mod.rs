@@ -106,6 +106,7 @@ use serde::{Deserialize, Serialize};
 use super::{Field, FieldError, NamedArray, ParamGroup};
 use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::optim::WeightDecay;
+use crate::rng::SplitMix64;
 use crate::samples::{FieldGrads, FieldOutputs, SampleBatch};
 
 /// Outputs of the density MLP (the first is the pre-activation density).
@@ -489,26 +490,6 @@ pub struct GridField {
     /// Uniform copy of the MLP weights read by the per-sample kernels, refreshed from
     /// `mlp` at the start of every pass (uniform-buffer reads are broadcasts).
     mlp_uniform: wgpu::Buffer,
-}
-
-/// Deterministic generator for the initialisation (SplitMix64).
-pub(crate) struct SplitMix64(u64);
-
-impl SplitMix64 {
-    pub(crate) fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-    pub(crate) fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in `[-r, r)`.
-    pub(crate) fn uniform(&mut self, r: f64) -> f64 {
-        ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * r
-    }
 }
 
 /// Initial parameters for `config` (table, MLP), as described in the module doc.

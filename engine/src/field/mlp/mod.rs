@@ -168,7 +168,7 @@ impl MlpLayout {
 
 /// Initial parameters (Glorot-uniform weights, zero biases) for a seed.
 pub fn initial_params(cfg: &MlpConfig, layout: &MlpLayout) -> Vec<f32> {
-    let mut rng = super::grid::SplitMix64::new(cfg.seed ^ 0x6d6c_7000);
+    let mut rng = crate::rng::SplitMix64::new(cfg.seed ^ 0x6d6c_7000);
     let mut p = vec![0.0f32; layout.len];
     for (_, d) in layout.layers() {
         let bound = (6.0 / (d.n_in + d.n_out) as f64).sqrt();

@@ -8,7 +8,8 @@ use glam::Vec3;
 use super::reference::{TvRay, loss, weights};
 use super::*;
 use crate::field::grid::tests::{AABB, randomize, small_config};
-use crate::field::grid::SplitMix64;
+use crate::rng::SplitMix64;
+use crate::field::test_support::check_grid_grads_against_fd;
 use crate::field::{Field, GridField};
 use crate::gpu::test_gpu;
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer, reference as render_ref};
@@ -186,25 +187,5 @@ fn depth_tv_end_to_end_matches_finite_differences() {
     let l = loss_of(&model);
     assert!(l > 1e-4, "the test patch must be uneven: {l}");
     assert!((gpu_loss - l).abs() < 1e-3 * l, "GPU {gpu_loss} vs CPU {l}");
-    let mut rng = SplitMix64::new(23);
-    let touched: Vec<usize> = (0..table_grad.len()).filter(|&i| table_grad[i] != 0.0).collect();
-    let nonzero_mlp: Vec<usize> = (0..mlp_grad.len()).filter(|&i| mlp_grad[i] != 0.0).collect();
-    assert!(!touched.is_empty() && !nonzero_mlp.is_empty());
-    let mut checks: Vec<(bool, usize)> = (0..16).map(|_| (true, touched[rng.next_u64() as usize % touched.len()])).collect();
-    checks.extend((0..16).map(|_| (false, nonzero_mlp[rng.next_u64() as usize % nonzero_mlp.len()])));
-    let scale = table_grad.iter().chain(&mlp_grad).fold(0.0f32, |a, v| a.max(v.abs())) as f64;
-    let eps = 1e-5;
-    for (is_table, idx) in checks {
-        let (mut plus, mut minus) = (model.clone(), model.clone());
-        let (p, m) = if is_table { (&mut plus.table, &mut minus.table) } else { (&mut plus.mlp, &mut minus.mlp) };
-        p[idx] += eps;
-        m[idx] -= eps;
-        let fd = (loss_of(&plus) - loss_of(&minus)) / (2.0 * eps);
-        let got = if is_table { table_grad[idx] } else { mlp_grad[idx] } as f64;
-        assert!(
-            (got - fd).abs() <= 3e-3 * scale + 2e-2 * fd.abs(),
-            "{}[{idx}]: GPU {got} vs finite differences {fd} (scale {scale})",
-            if is_table { "table" } else { "mlp" }
-        );
-    }
+    check_grid_grads_against_fd("depth TV", &model, &table_grad, &mlp_grad, 23, loss_of);
 }
