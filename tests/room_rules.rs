@@ -46,10 +46,6 @@ const EXCEPTIONS: &[(&str, &str, &str)] = &[
     // `metrics::quantile`, while `metrics::maps` draws with viz's colours (a
     // metrics <-> viz loop). Fix: move `quantile` down (viz or a small shared helper).
     ("viz", "metrics", "engine/src/viz.rs"),
-    // Sideways arrow: `loss::photometric::psnr` converts the batch MSE with
-    // `metrics::image::psnr_from_mse`, tying the GPU loss room to the evaluation room
-    // for one line. Fix: the trainer calls the metrics function itself.
-    ("loss", "metrics", "engine/src/loss/photometric.rs"),
 ];
 
 const DOC: &str = "docs/ARCHITECTURE.md";

@@ -401,7 +401,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         ckpt_path.display()
     );
     if !args.no_eval {
-        crate::cmd::render::evaluate_and_write(&mut trainer, &args.out.join("test"))?;
+        crate::cmd::render::evaluate_and_write(&trainer.gpu, &mut trainer.model, &trainer.scene, &args.out.join("test"))?;
     }
     Ok(())
 }
