@@ -1,8 +1,10 @@
 //! The train room: what ties the rooms together. The run configuration ([`config`]),
 //! the [`Model`] (field, occupancy grid, sampler, renderer; built fresh or from a
 //! checkpoint, [`model`]), the per-batch training pipeline ([`pipeline`]), the
-//! [`Trainer`] (batches, optimizer, schedules, steps), checkpoints ([`checkpoint`]), the
-//! evaluation of test views ([`evaluate`]), and per-stage profiling ([`profile`]).
+//! [`Trainer`] (batches, optimizer, schedules, steps), the loop of a whole run in its
+//! run directory ([`run`]: cadence, log, time limit, stop requests), checkpoints
+//! ([`checkpoint`]), the evaluation of test views ([`evaluate`]), the files a run
+//! writes ([`output`]), and per-stage profiling ([`profile`]).
 //!
 //! One step ([`Trainer::step`]: draw a batch, then [`Trainer::step_on`]; the repository's
 //! `docs/ARCHITECTURE.md` shows the same flow room by room):
@@ -51,11 +53,13 @@ pub mod checkpoint;
 pub mod config;
 pub mod evaluate;
 pub mod model;
+pub mod output;
 pub mod pipeline;
 pub mod profile;
 pub mod random_poses;
 pub mod rays;
 pub mod regnerf;
+pub mod run;
 
 use std::path::{Path, PathBuf};
 
@@ -77,6 +81,7 @@ pub use model::{Model, RenderedView};
 pub use pipeline::{BatchLosses, Pipeline, StepPlan};
 pub use profile::{Stage, StageTimes};
 pub use regnerf::RegNerfConfig;
+pub use run::{RunEnd, RunObserver, RunSummary, train_run, write_evaluation};
 
 /// Errors of training and rendering runs.
 #[derive(Debug, thiserror::Error)]
@@ -314,18 +319,6 @@ impl Trainer {
         self.step
     }
 
-    fn apply_level_anneal(&mut self) {
-        let levels = self.model.field.encoding_levels();
-        if let Some(a) = &self.model.config.train.level_anneal
-            && levels > 0
-        {
-            let frac = if a.steps == 0 { 1.0 } else { (self.step as f64 / a.steps as f64).min(1.0) };
-            let start = a.start_levels.min(levels) as f64;
-            let active = (start + frac * (levels as f64 - start)).floor() as u32;
-            self.model.field.set_active_levels(active.max(1));
-        }
-    }
-
     /// One optimisation step (see the module doc).
     pub fn step(&mut self) -> Result<StepStats, TrainError> {
         if let Some(p) = &mut self.profile {
@@ -400,7 +393,7 @@ impl Trainer {
             (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
         }
         self.pipeline.check_batch(&batch)?;
-        self.apply_level_anneal();
+        self.model.set_levels_for_step(step);
         self.model.update_grid(&gpu, step, self.model.grid_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);

@@ -171,10 +171,11 @@ impl Model {
     }
 
     /// The model of a checkpoint, ready to render, without optimizer state: its config
-    /// [`RunConfig::resolve_for`] `scene`, its field's parameters, and its occupancy
-    /// grid's densities (so renders skip exactly the space training skipped), or, for a
+    /// [`RunConfig::resolve_for`] `scene`, its field's parameters with the encoding
+    /// levels its last step used (coarse-to-fine runs), and its occupancy grid's
+    /// densities (so renders skip exactly the space training skipped), or, for a
     /// checkpoint without them (uniform sampling, older files), a grid rebuilt from the
-    /// restored field.
+    /// restored field. It renders as the trained model did at the end of its run.
     pub fn from_checkpoint(gpu: &Gpu, scene: &Scene, ckpt: &Checkpoint) -> Result<Model, TrainError> {
         let mut config = ckpt.config.clone();
         config.resolve_for(scene)?;
@@ -188,7 +189,25 @@ impl Model {
                 model.update_grid(gpu, ckpt.step, model.grid_seed(ckpt.step), true)?;
             }
         }
+        // The levels the last trained step used, as the trained model had them (after
+        // any grid rebuild, which queries every level as it always has).
+        model.set_levels_for_step(ckpt.step.saturating_sub(1));
         Ok(model)
+    }
+
+    /// Coarse-to-fine (`train.level_anneal`): activates the field's encoding levels of
+    /// step `step`, from `start_levels` up to all of them over `steps` steps; does
+    /// nothing without the option or for a field without levels.
+    pub fn set_levels_for_step(&mut self, step: u64) {
+        let levels = self.field.encoding_levels();
+        if let Some(a) = &self.config.train.level_anneal
+            && levels > 0
+        {
+            let frac = if a.steps == 0 { 1.0 } else { (step as f64 / a.steps as f64).min(1.0) };
+            let start = a.start_levels.min(levels) as f64;
+            let active = (start + frac * (levels as f64 - start)).floor() as u32;
+            self.field.set_active_levels(active.max(1));
+        }
     }
 
     /// The seed of the occupancy grid's random cells at `step`.

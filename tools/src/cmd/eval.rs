@@ -204,7 +204,7 @@ fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out
     let score = |s: &Option<LpipsScorer>| s.as_ref().map(|f| f(w, h, &lp_a, &lp_b)).transpose();
     let (lpips_vgg, lpips_alex) = (score(&lpips.vgg)?, score(&lpips.alex)?);
 
-    crate::output::write_view(out, &name, r)?;
+    edgenerf::train::output::write_view(out, &name, r)?;
     let save = |img: edgenerf::data::ImageRgb, what: &str| img.save_png(out.join(format!("{name}_{what}.png")));
     let gt_depth = view.depth.as_deref().filter(|_| scene.ndc.is_none());
     let depth = r.terminated_depth(scene.far);

@@ -54,7 +54,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let bar = ProgressBar::new(views.len() as u64);
     for v in views {
         let r = run.model.render_view(&run.gpu, &run.scene, v)?;
-        crate::output::write_view(&args.out, &run.scene.views[v].name, &r)?;
+        edgenerf::train::output::write_view(&args.out, &run.scene.views[v].name, &r)?;
         bar.inc(1);
     }
     bar.finish();
@@ -107,16 +107,13 @@ pub fn no_test_views(scene: &Scene, hint: &str) -> String {
     format!("{} has no test views ({files}), so there is nothing to evaluate; {hint}", scene.root.display())
 }
 
-/// Renders the test views, writes them under `dir`, prints per-view and mean PSNR and
-/// saves them as `dir/metrics.json`.
+/// Renders the test views and writes them and `metrics.json` under `dir`
+/// ([`edgenerf::train::write_evaluation`]), then prints the per-view and mean figures.
 pub fn evaluate_and_write(gpu: &Gpu, model: &mut Model, scene: &Scene, dir: &Path) -> anyhow::Result<()> {
     if scene.split.test.is_empty() {
         bail!("{}", no_test_views(scene, "render --split train or --split all instead"));
     }
-    let (eval, renders) = edgenerf::train::evaluate(gpu, model, scene)?;
-    for (v, r) in &renders {
-        crate::output::write_view(dir, &scene.views[*v].name, r)?;
-    }
+    let eval = edgenerf::train::write_evaluation(gpu, model, scene, dir)?;
     let fmt = |x: Option<f32>, unit: &str| x.map_or("-".to_string(), |x| format!("{x:.3}{unit}"));
     for e in &eval.per_view {
         let depth = e.geometry.as_ref().and_then(|g| g.depth.as_ref()).and_then(|d| d.all).map(|d| d.abs as f32);
@@ -151,7 +148,5 @@ pub fn evaluate_and_write(gpu: &Gpu, model: &mut Model, scene: &Scene, dir: &Pat
             fmt(eval.mean_dbe_completeness, ""),
         );
     }
-    let metrics = dir.join("metrics.json");
-    std::fs::write(&metrics, serde_json::to_string_pretty(&eval)?).with_context(|| format!("writing {}", metrics.display()))?;
     Ok(())
 }
