@@ -288,7 +288,7 @@ impl Trainer {
     /// A trainer at step 0 around `model`, whose config is resolved for `scene`.
     fn with_model(gpu: Gpu, scene: Scene, model: Model, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         let config = &model.config;
-        let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam.clone())?;
+        let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam)?;
         let pipeline = Pipeline::new(&gpu, &scene, &model, config)?;
         let tv_poses = if pipeline.tv_rays() > 0 {
             let r = &config.regnerf;

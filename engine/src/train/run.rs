@@ -100,7 +100,7 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
         writeln!(log, "{}", stats.csv_row(elapsed)).map_err(|e| TrainError::io(&log_path, e))?;
         observer.step(trainer, &stats, elapsed);
         let every = config.train.checkpoint_every;
-        if every > 0 && trainer.step_count() % every == 0 && trainer.step_count() < iters {
+        if every > 0 && trainer.step_count().is_multiple_of(every) && trainer.step_count() < iters {
             trainer.checkpoint()?.save(&checkpoint)?;
         }
         if observer.stop_requested() {
