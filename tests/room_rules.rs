@@ -42,12 +42,7 @@ const RULES: &[(&str, &[&str], &[&str])] = &[
 ];
 
 /// `(from, to, file)`: imports the rules forbid that the code has today, to be removed.
-const EXCEPTIONS: &[(&str, &str, &str)] = &[
-    // Sideways arrow: `loss::photometric::psnr` converts the batch MSE with
-    // `metrics::image::psnr_from_mse`, tying the GPU loss room to the evaluation room
-    // for one line. Fix: the trainer calls the metrics function itself.
-    ("loss", "metrics", "engine/src/loss/photometric.rs"),
-];
+const EXCEPTIONS: &[(&str, &str, &str)] = &[];
 
 const DOC: &str = "docs/ARCHITECTURE.md";
 

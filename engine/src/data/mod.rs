@@ -65,6 +65,15 @@ pub enum SceneFormat {
     DtuPixelNerf,
 }
 
+impl SceneFormat {
+    /// Whether this is a DTU layout (IDR or pixelNeRF): the one test of "is this scene
+    /// DTU" that the DTU-specific defaults (lambda3, RegNeRF's options) and the masked
+    /// evaluation protocol follow.
+    pub fn is_dtu(self) -> bool {
+        matches!(self, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf)
+    }
+}
+
 impl std::fmt::Display for SceneFormat {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
@@ -151,6 +160,11 @@ impl Scene {
     /// Image size shared by every view.
     pub fn image_size(&self) -> (u32, u32) {
         self.views.first().map_or((0, 0), |v| (v.camera.width, v.camera.height))
+    }
+
+    /// Whether the scene is a DTU scan ([`SceneFormat::is_dtu`]).
+    pub fn is_dtu(&self) -> bool {
+        self.format.is_dtu()
     }
 
     /// Indices of the training views.

@@ -67,11 +67,6 @@ impl Photometric {
     }
 }
 
-/// PSNR in dB of a mean squared error on `[0, 1]` images.
-pub fn psnr(mse: f32) -> f32 {
-    crate::metrics::image::psnr_from_mse(mse as f64) as f32
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,6 +115,5 @@ mod tests {
             }
             assert_eq!(grads[r].depth, 0.0);
         }
-        assert!((psnr(0.01) - 20.0).abs() < 1e-5);
     }
 }

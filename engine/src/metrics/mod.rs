@@ -16,7 +16,9 @@
 //!   them all for one view;
 //! * [`boundary`]: the iBims-1 depth boundary error (DBE accuracy and completeness);
 //! * [`distance`]: the exact Euclidean distance transform both of the above use;
-//! * [`maps`]: error maps as RGB images for people (colours from [`crate::viz`]).
+//! * [`maps`]: error maps as RGB images for people (colours from [`crate::viz`]);
+//! * [`protocol`]: the evaluation protocol, which pixels of a view the image metrics
+//!   count by the scene's format (DTU masked, or full image), used by every evaluation.
 //!
 //! Conventions (those of [`crate::data`]): images row-major, `width * height` pixels,
 //! RGB interleaved in `[0, 1]`; depth is the ray distance, `> 0` and finite where the
@@ -36,6 +38,7 @@ pub mod geometry;
 pub mod image;
 pub mod lpips;
 pub mod maps;
+pub mod protocol;
 
 pub use boundary::{DbeParams, DepthBoundaryError, depth_boundary_error, depth_boundary_error_from_edges};
 pub use geometry::{
@@ -47,6 +50,7 @@ pub use lpips::{Lpips, LpipsError, LpipsNet};
 /// Numpy's quantile; it lives in [`crate::viz`], whose robust colour ranges need it and
 /// which may not import this room.
 pub use crate::viz::quantile;
+pub use protocol::{ImageScore, Protocol, comparison_images, score_view};
 
 /// Inputs a metric cannot be computed on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

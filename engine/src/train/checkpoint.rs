@@ -9,8 +9,8 @@
 //! (`edgenerf-checkpoint`), `version` (`1`), `step`, `backend`, `config` (JSON of the
 //! [`RunConfig`]).
 //!
-//! Invariant: a checkpoint file is replaced atomically (written beside it, then
-//! renamed), so an interrupted write never destroys the last good checkpoint.
+//! Invariant: a checkpoint file is replaced atomically ([`write_atomic`]: written beside
+//! it, then renamed), so an interrupted write never destroys the last good checkpoint.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -21,6 +21,7 @@ use crate::field::NamedArray;
 
 use super::TrainError;
 use super::config::RunConfig;
+use super::output::write_atomic;
 
 pub const FORMAT: &str = "edgenerf-checkpoint";
 pub const VERSION: &str = "1";
@@ -70,9 +71,7 @@ impl Checkpoint {
             ("config".to_string(), serde_json::to_string(&self.config).expect("configs serialize")),
         ]);
         let data = safetensors::serialize(views, Some(meta)).map_err(|e| corrupt(path, e))?;
-        let tmp = path.with_extension("safetensors.partial");
-        std::fs::write(&tmp, data).map_err(|e| TrainError::io(&tmp, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+        write_atomic(path, &data)
     }
 
     /// Reads a checkpoint written by [`Checkpoint::save`].

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::data::LoadOptions;
+use crate::data::{LoadOptions, Scene};
 use crate::edges::EdgeConfig;
 use crate::field::{GridConfig, MlpConfig};
 use crate::loss::RegConfig;
@@ -279,6 +279,27 @@ impl RunConfig {
         {
             *max_steps = self.train.iters.max(1);
         }
+    }
+
+    /// The config a run on `scene` uses: [`RunConfig::resolve`]d, the options that
+    /// default by scene type (lambda3, RegNeRF's) set to their values on `scene` so that
+    /// `config.json` and checkpoints say what ran rather than `null`, and checked
+    /// ([`RunConfig::validate`], [`RunConfig::check_paths`], training views present).
+    /// Idempotent; every model, trained or loaded from a checkpoint, is built from it.
+    pub fn resolve_for(&mut self, scene: &Scene) -> Result<(), TrainError> {
+        self.resolve();
+        // The scene decides lambda3's default (0.001 on DTU).
+        self.reg.lambda_normal = Some(self.reg.lambda_normal_for(scene.is_dtu()));
+        self.regnerf.resolve_for(scene);
+        self.optim.validate()?;
+        let config_error = |message: String| TrainError::Config { source_name: "config".into(), message };
+        // Every range, reg / regnerf / priors and the batch sizes included.
+        self.validate().map_err(config_error)?;
+        self.check_paths().map_err(config_error)?;
+        if scene.split.train.is_empty() {
+            return Err(TrainError::Config { source_name: "scene".into(), message: "no training views".into() });
+        }
+        Ok(())
     }
 
     /// Applies an override `dotted.key=value`; `value` is parsed as JSON (numbers,

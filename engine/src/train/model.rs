@@ -1,19 +1,23 @@
-//! A trained (or training) model: field + occupancy grid + sampler + renderer, and
-//! rendering of arbitrary rays and whole views with it.
+//! A trained (or training) model: field + occupancy grid + sampler + renderer, built
+//! fresh ([`Model::new`]) or from a checkpoint without any optimizer state
+//! ([`Model::from_checkpoint`]), and rendering of arbitrary rays and whole views with it.
+//! Training batches run through the same model in [`super::pipeline`].
 //!
 //! Invariants: the model never changes parameters (the [`Trainer`](super::Trainer)
 //! does); the occupancy grid is refreshed only through [`Model::update_grid`], from the
-//! field's own densities; rendering for images uses no jitter (deterministic output).
+//! field's own densities, or restored from a checkpoint; rendering for images uses no
+//! jitter (deterministic output).
 
 use crate::data::Scene;
 use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
-use crate::render::{Background, RenderOutputs, Renderer};
+use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
 use crate::sampler::{GridUpdate, March, OccupancyGrid, Sampler, SamplerMode};
 use crate::samples::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
 
-use super::config::{Backend, RunConfig};
 use super::TrainError;
+use super::checkpoint::Checkpoint;
+use super::config::{Backend, RunConfig};
 
 /// Rays rendered per chunk when rendering images.
 const RENDER_CHUNK: u32 = 4096;
@@ -81,8 +85,8 @@ pub struct Model {
     pub config: RunConfig,
     pub field: Box<dyn Field>,
     pub grid: OccupancyGrid,
-    pub(super) sampler: Sampler,
-    pub(super) renderer: Renderer,
+    sampler: Sampler,
+    renderer: Renderer,
     grid_densities: Option<GpuBuffer<f32>>,
     render_buffers: Option<BatchBuffers>,
 }
@@ -148,7 +152,8 @@ pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
 }
 
 impl Model {
-    /// A freshly initialised model for `scene`.
+    /// A freshly initialised model for `scene` with `config` as given (a run's config
+    /// is first [`RunConfig::resolve_for`] the scene).
     pub fn new(gpu: &Gpu, scene: &Scene, config: RunConfig) -> Result<Model, TrainError> {
         let field: Box<dyn Field> = match config.backend {
             Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
@@ -163,6 +168,67 @@ impl Model {
         render_config.background = background_of(&config, scene);
         let renderer = Renderer::new(gpu, render_config)?;
         Ok(Model { config, field, grid, sampler, renderer, grid_densities: None, render_buffers: None })
+    }
+
+    /// The model of a checkpoint, ready to render, without optimizer state: its config
+    /// [`RunConfig::resolve_for`] `scene`, its field's parameters with the encoding
+    /// levels its last step used (coarse-to-fine runs), and its occupancy grid's
+    /// densities (so renders skip exactly the space training skipped), or, for a
+    /// checkpoint without them (uniform sampling, older files), a grid rebuilt from the
+    /// restored field. It renders as the trained model did at the end of its run.
+    pub fn from_checkpoint(gpu: &Gpu, scene: &Scene, ckpt: &Checkpoint) -> Result<Model, TrainError> {
+        let mut config = ckpt.config.clone();
+        config.resolve_for(scene)?;
+        let mut model = Model::new(gpu, scene, config)?;
+        model.field.import(gpu, &ckpt.field)?;
+        match &ckpt.occupancy {
+            Some(density) if model.config.sampler.mode == SamplerMode::Occupancy => {
+                model.grid.restore_density(gpu, density)?;
+            }
+            _ => {
+                model.update_grid(gpu, ckpt.step, model.grid_seed(ckpt.step), true)?;
+            }
+        }
+        // The levels the last trained step used, as the trained model had them (after
+        // any grid rebuild, which queries every level as it always has).
+        model.set_levels_for_step(ckpt.step.saturating_sub(1));
+        Ok(model)
+    }
+
+    /// Coarse-to-fine (`train.level_anneal`): activates the field's encoding levels of
+    /// step `step`, from `start_levels` up to all of them over `steps` steps; does
+    /// nothing without the option or for a field without levels.
+    pub fn set_levels_for_step(&mut self, step: u64) {
+        let levels = self.field.encoding_levels();
+        if let Some(a) = &self.config.train.level_anneal
+            && levels > 0
+        {
+            let frac = if a.steps == 0 { 1.0 } else { (step as f64 / a.steps as f64).min(1.0) };
+            let start = a.start_levels.min(levels) as f64;
+            let active = (start + frac * (levels as f64 - start)).floor() as u32;
+            self.field.set_active_levels(active.max(1));
+        }
+    }
+
+    /// The seed of the occupancy grid's random cells at `step`.
+    pub fn grid_seed(&self, step: u64) -> u32 {
+        (self.config.train.seed as u32).wrapping_mul(0x9E37_79B9) ^ (step as u32)
+    }
+
+    /// The renderer's settings (the background resolved for the scene).
+    pub fn render_config(&self) -> &RenderConfig {
+        self.renderer.config()
+    }
+
+    /// Fraction of the occupancy grid's cells marked occupied.
+    pub fn occupied_fraction(&self) -> f32 {
+        self.grid.occupied_cells() as f32 / self.config.sampler.resolution.pow(3) as f32
+    }
+
+    /// Per-ray sample counts of the last sampled batch before the capacity cap
+    /// ([`Sampler::wanted_counts`]); `None` before the first batch.
+    pub(super) fn wanted_counts(&self) -> Option<&GpuBuffer<u32>> {
+        self.sampler.wanted_counts()
     }
 
     /// Refreshes the occupancy grid from the field if `step` is an update step (or

@@ -12,6 +12,8 @@
 
 use std::time::Instant;
 
+use crate::gpu::{Gpu, GpuError};
+
 /// The stages of a step, in order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
@@ -95,4 +97,14 @@ impl StageTimes {
     pub fn total(&self) -> f64 {
         self.seconds.iter().sum()
     }
+}
+
+/// With profiling on (`profile` is `Some`), waits for the GPU and charges the time since
+/// the last stage's end to `stage`; does nothing otherwise.
+pub(super) fn end_stage(profile: &mut Option<StageTimes>, gpu: &Gpu, stage: Stage) -> Result<(), GpuError> {
+    if let Some(p) = profile {
+        gpu.wait()?;
+        p.end(stage);
+    }
+    Ok(())
 }

@@ -35,7 +35,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
-use crate::data::{Camera, Scene, SceneFormat};
+use crate::data::{Camera, Scene};
 use crate::samples::GpuRay;
 
 use super::rays::to_gpu_ray;
@@ -53,16 +53,16 @@ pub enum PoseKind {
 impl PoseKind {
     /// RegNeRF's generator for the scene's type (module doc).
     pub fn for_scene(scene: &Scene) -> PoseKind {
-        match scene.format {
-            _ if scene.ndc.is_some() => PoseKind::Llff,
-            SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf => PoseKind::Box,
-            _ => {
-                let axes: Vec<Vec3> = scene.train_views().map(|v| v.camera.forward()).collect();
-                let mean = axes.iter().copied().sum::<Vec3>().normalize_or_zero();
-                let facing_one_way = axes.iter().all(|a| a.dot(mean) >= 45f32.to_radians().cos());
-                if facing_one_way { PoseKind::Box } else { PoseKind::Sphere }
-            }
+        if scene.ndc.is_some() {
+            return PoseKind::Llff;
         }
+        if scene.is_dtu() {
+            return PoseKind::Box;
+        }
+        let axes: Vec<Vec3> = scene.train_views().map(|v| v.camera.forward()).collect();
+        let mean = axes.iter().copied().sum::<Vec3>().normalize_or_zero();
+        let facing_one_way = axes.iter().all(|a| a.dot(mean) >= 45f32.to_radians().cos());
+        if facing_one_way { PoseKind::Box } else { PoseKind::Sphere }
     }
 }
 

@@ -26,7 +26,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::data::{Scene, SceneFormat};
+use crate::data::Scene;
 use crate::samples::GpuRay;
 
 use super::random_poses::PoseKind;
@@ -119,10 +119,6 @@ impl Anneal {
 }
 
 impl RegNerfConfig {
-    fn is_dtu(scene: &Scene) -> bool {
-        matches!(scene.format, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf)
-    }
-
     /// The TV weight at `step` (0-based; RegNeRF's `compute_tvnorm_weight` at `step + 1`),
     /// `None` when the term is off.
     pub fn tv_weight_at(&self, step: u64) -> Option<f32> {
@@ -149,7 +145,7 @@ impl RegNerfConfig {
 
     /// `depth_tvnorm_mask_weight` in effect.
     pub fn acc_weight_for(&self, scene: &Scene) -> f32 {
-        self.tv_acc_weight.unwrap_or(if Self::is_dtu(scene) { 1.0 } else { 0.0 })
+        self.tv_acc_weight.unwrap_or(if scene.is_dtu() { 1.0 } else { 0.0 })
     }
 
     /// The pose generator in effect.

@@ -1,15 +1,16 @@
 //! `edgenerf eval`: every image and geometry metric of a trained run under its scene's
 //! protocol, with per-view renders and error maps, `metrics.json` and a printed table.
 //!
-//! Owns the protocol choice and the `metrics.json` layout of `eval` (which `bench`
-//! reads back); the metrics themselves come from the engine's metrics room:
-//! * protocol, by the scene's format: **DTU masked** for DTU scenes (PSNR over the
-//!   object mask, SSIM and LPIPS on `img * mask + (1 - mask)` composites of both
-//!   images; the unmasked figures are kept as `full_image`), **full image** for LLFF
-//!   and synthetic scenes (whose GT masks are not part of their protocol);
-//! * geometry (scenes with ground truth): [`edgenerf::train::evaluate_view`], i.e.
-//!   depth AbsRel / RMSE / delta, normal angles, each split by the GT edge band, DBE;
-//! * LPIPS (VGG, Alex) when the weights are installed (`tools/lpips/fetch-weights`);
+//! Owns the `metrics.json` layout of `eval` (which `bench` reads back); the protocol
+//! and the metrics come from the engine, so that `eval` and the end of `train` give the
+//! same figures for the same checkpoint:
+//! * PSNR, SSIM and geometry: [`edgenerf::train::evaluate_view`], under the scene's
+//!   protocol ([`edgenerf::metrics::protocol`]: **DTU masked** for DTU scenes, PSNR over
+//!   the object mask and SSIM on white composites, the unmasked figures kept as
+//!   `full_image`; **full image** for LLFF and synthetic scenes); geometry is depth
+//!   AbsRel / RMSE / delta, normal angles, each split by the GT edge band, DBE;
+//! * LPIPS (VGG, Alex) when the weights are installed (`tools/lpips/fetch-weights`), on
+//!   the protocol's image pair ([`edgenerf::metrics::protocol::comparison_images`]);
 //! * maps: depth error, normal angle error ([`edgenerf::metrics::maps`]) and an edge
 //!   overlay: the DBE's Canny edges of GT and predicted depth where the scene has GT
 //!   depth, else Canny edges of the GT and rendered images' luma.
@@ -22,13 +23,14 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use edgenerf::data::{Scene, SceneFormat};
+use edgenerf::data::Scene;
 use edgenerf::edges::{CannyParams, canny, luma, mask_stem};
 use edgenerf::gpu::GpuOptions;
 use edgenerf::metrics::boundary::{DbeParams, dbe_edges, normalize_depth};
 use edgenerf::metrics::maps::{depth_error_map, edge_overlay, normal_error_map};
 use edgenerf::metrics::lpips::{Lpips, LpipsNet};
-use edgenerf::metrics::{GeometryMetrics, ImageMetrics, masked_image_metrics};
+use edgenerf::metrics::protocol::{Protocol, comparison_images};
+use edgenerf::metrics::{GeometryMetrics, ImageMetrics};
 use edgenerf::train::{RenderedView, evaluate_view};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -108,16 +110,6 @@ impl LpipsSet {
         }
         Ok(set)
     }
-}
-
-/// How a view was scored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Protocol {
-    /// PSNR over the object mask; SSIM and LPIPS on white composites (RegNeRF's DTU).
-    DtuMasked,
-    /// Every pixel counts (LLFF, synthetic; DTU views without a mask).
-    FullImage,
 }
 
 /// Every figure of one view.
@@ -201,31 +193,18 @@ pub fn mean_metrics(views: &[ViewRecord]) -> BTreeMap<String, f64> {
     sums.into_iter().map(|(k, (s, n))| (k, s / n as f64)).collect()
 }
 
-/// `img * mask + (1 - mask)` (RGB interleaved, one mask value per pixel).
-fn white_composite(img: &[f32], mask: &[f32]) -> Vec<f32> {
-    img.iter().enumerate().map(|(i, &v)| v * mask[i / 3] + (1.0 - mask[i / 3])).collect()
-}
-
 /// Scores one rendered view and writes its renders and error maps into `out`.
 fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out: &Path) -> anyhow::Result<ViewRecord> {
     let view = &scene.views[v];
     let name = mask_stem(scene, v);
     let (w, h) = (r.width, r.height);
     let base = evaluate_view(scene, v, r).with_context(|| format!("metrics of view {name}"))?;
-    let rgb: Vec<f32> = r.rgb.iter().flatten().copied().collect();
-    let dtu = matches!(scene.format, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf);
-    let (protocol, psnr, ssim, full_image, (lp_a, lp_b)) = match view.mask.as_ref().filter(|_| dtu) {
-        Some(mask) => {
-            let m = masked_image_metrics(w, h, &rgb, &view.image.data, mask)?;
-            let full = ImageMetrics { psnr: base.psnr as f64, ssim: base.ssim as f64 };
-            (Protocol::DtuMasked, m.psnr, m.ssim, Some(full), (white_composite(&rgb, mask), white_composite(&view.image.data, mask)))
-        }
-        None => (Protocol::FullImage, base.psnr as f64, base.ssim as f64, None, (rgb.clone(), view.image.data.clone())),
-    };
+    let rgb = r.rgb.as_flattened();
+    let (lp_a, lp_b) = comparison_images(scene, v, rgb)?;
     let score = |s: &Option<LpipsScorer>| s.as_ref().map(|f| f(w, h, &lp_a, &lp_b)).transpose();
     let (lpips_vgg, lpips_alex) = (score(&lpips.vgg)?, score(&lpips.alex)?);
 
-    crate::output::write_view(out, &name, r)?;
+    edgenerf::train::output::write_view(out, &name, r)?;
     let save = |img: edgenerf::data::ImageRgb, what: &str| img.save_png(out.join(format!("{name}_{what}.png")));
     let gt_depth = view.depth.as_deref().filter(|_| scene.ndc.is_none());
     let depth = r.terminated_depth(scene.far);
@@ -236,13 +215,23 @@ fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out
     } else {
         let params = CannyParams::default();
         let e_gt = canny(&luma(&view.image.data), w, h, &params);
-        let e_est = canny(&luma(&rgb), w, h, &params);
+        let e_est = canny(&luma(rgb), w, h, &params);
         save(edge_overlay(w, h, &luma(&view.image.data), &e_gt, &e_est)?, "edge_overlay")?;
     }
     if let Some(gt) = view.normal.as_deref() {
         save(normal_error_map(w, h, gt, &r.unit_normals())?, "normal_error")?;
     }
-    Ok(ViewRecord { view: v, name, protocol, psnr, ssim, lpips_vgg, lpips_alex, full_image, geometry: base.geometry })
+    Ok(ViewRecord {
+        view: v,
+        name,
+        protocol: base.protocol,
+        psnr: base.psnr as f64,
+        ssim: base.ssim as f64,
+        lpips_vgg,
+        lpips_alex,
+        full_image: base.full_image,
+        geometry: base.geometry,
+    })
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
@@ -255,29 +244,29 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         dir.join(if args.split == "test" { "eval".to_string() } else { format!("eval-{}", args.split) })
     });
     crate::output::ensure_dir(&out, "--out")?;
-    let mut trainer = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
-    let views = crate::cmd::render::split_views(&trainer.scene, &args.split)?;
+    let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
+    let views = crate::cmd::render::split_views(&run.scene, &args.split)?;
 
     let bar = ProgressBar::new(views.len() as u64);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} views [{elapsed_precise}] {msg}").unwrap());
     let mut records = Vec::new();
     for v in views {
-        bar.set_message(trainer.scene.views[v].name.clone());
-        let r = trainer.model.render_view(&trainer.gpu, &trainer.scene, v)?;
-        records.push(evaluate_one(&trainer.scene, v, &r, &lpips, &out)?);
+        bar.set_message(run.scene.views[v].name.clone());
+        let r = run.model.render_view(&run.gpu, &run.scene, v)?;
+        records.push(evaluate_one(&run.scene, v, &r, &lpips, &out)?);
         bar.inc(1);
     }
     bar.finish_and_clear();
     if records.is_empty() {
-        bail!("the {} split of {} has no view", args.split, trainer.scene.root.display());
+        bail!("the {} split of {} has no view", args.split, run.scene.root.display());
     }
     let protocol = records[0].protocol;
     let report = EvalReport {
         checkpoint: args.run.clone(),
-        scene: trainer.scene.root.clone(),
+        scene: run.scene.root.clone(),
         split: args.split.clone(),
-        step: trainer.step_count(),
-        adapter: trainer.gpu.adapter().name.clone(),
+        step: run.step,
+        adapter: run.gpu.adapter().name.clone(),
         protocol,
         notes: lpips.notes,
         metrics: mean_metrics(&records),

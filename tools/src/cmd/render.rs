@@ -1,12 +1,13 @@
 //! `edgenerf render`: render views of a trained run (RGB, depth, normals, opacity),
-//! and the test-view evaluation shared with `train`.
+//! the loading of a run's model for `render` and `eval` (no optimizer state), and the
+//! test-view evaluation shared with `train`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use edgenerf::data::Scene;
 use edgenerf::gpu::{Gpu, GpuOptions};
-use edgenerf::train::{Checkpoint, Trainer};
+use edgenerf::train::{Checkpoint, Model};
 use indicatif::ProgressBar;
 
 #[derive(clap::Args)]
@@ -35,25 +36,25 @@ pub struct Args {
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     crate::output::ensure_dir(&args.out, "--out")?;
-    let mut trainer = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
+    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
     if let Some(b) = &args.backend {
         let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;
-        let got = trainer.config().backend;
+        let got = run.model.config.backend;
         if got != want {
             bail!("{} was trained with the {} backend, not {b} (--backend {b})", args.checkpoint.display(), got.name());
         }
     }
     if let Some(mode) = &args.sampler {
-        trainer.model.config.sampler.mode = serde_json::from_value(serde_json::Value::String(mode.clone()))?;
+        run.model.config.sampler.mode = serde_json::from_value(serde_json::Value::String(mode.clone()))?;
     }
-    let views = split_views(&trainer.scene, &args.split)?;
+    let views = split_views(&run.scene, &args.split)?;
     if args.split == "test" {
-        return evaluate_and_write(&mut trainer, &args.out);
+        return evaluate_and_write(&run.gpu, &mut run.model, &run.scene, &args.out);
     }
     let bar = ProgressBar::new(views.len() as u64);
     for v in views {
-        let r = trainer.model.render_view(&trainer.gpu, &trainer.scene, v)?;
-        crate::output::write_view(&args.out, &trainer.scene.views[v].name, &r)?;
+        let r = run.model.render_view(&run.gpu, &run.scene, v)?;
+        edgenerf::train::output::write_view(&args.out, &run.scene.views[v].name, &r)?;
         bar.inc(1);
     }
     bar.finish();
@@ -61,10 +62,19 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A trained run ready to render: the checkpoint (a file, or a run directory holding
-/// `checkpoint.safetensors`), its scene (the path recorded in its config, or `scene`),
-/// on the GPU. Shared by `render` and `eval`.
-pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) -> anyhow::Result<Trainer> {
+/// A trained run ready to render: its model (no optimizer state), scene and GPU.
+pub struct LoadedRun {
+    pub gpu: Gpu,
+    pub scene: Scene,
+    pub model: Model,
+    /// The checkpoint's step.
+    pub step: u64,
+}
+
+/// The run of a checkpoint (a file, or a run directory holding
+/// `checkpoint.safetensors`) on its scene (the path recorded in its config, or
+/// `scene`), on the GPU ([`Model::from_checkpoint`]). Shared by `render` and `eval`.
+pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) -> anyhow::Result<LoadedRun> {
     let path = if checkpoint.is_dir() { checkpoint.join("checkpoint.safetensors") } else { checkpoint.to_path_buf() };
     let mut ckpt = Checkpoint::load(&path)?;
     if let Some(scene) = scene {
@@ -74,7 +84,8 @@ pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) 
     let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options())
         .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
     let gpu = Gpu::new(gpu_opts)?;
-    Ok(Trainer::resume(gpu, scene, ckpt, None)?)
+    let model = Model::from_checkpoint(&gpu, &scene, &ckpt)?;
+    Ok(LoadedRun { gpu, scene, model, step: ckpt.step })
 }
 
 /// The view indices of a split name: `test`, `train` or `all`.
@@ -96,16 +107,13 @@ pub fn no_test_views(scene: &Scene, hint: &str) -> String {
     format!("{} has no test views ({files}), so there is nothing to evaluate; {hint}", scene.root.display())
 }
 
-/// Renders the test views, writes them under `dir`, prints per-view and mean PSNR and
-/// saves them as `dir/metrics.json`.
-pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<()> {
-    if trainer.scene.split.test.is_empty() {
-        bail!("{}", no_test_views(&trainer.scene, "render --split train or --split all instead"));
+/// Renders the test views and writes them and `metrics.json` under `dir`
+/// ([`edgenerf::train::write_evaluation`]), then prints the per-view and mean figures.
+pub fn evaluate_and_write(gpu: &Gpu, model: &mut Model, scene: &Scene, dir: &Path) -> anyhow::Result<()> {
+    if scene.split.test.is_empty() {
+        bail!("{}", no_test_views(scene, "render --split train or --split all instead"));
     }
-    let (eval, renders) = trainer.evaluate()?;
-    for (v, r) in &renders {
-        crate::output::write_view(dir, &trainer.scene.views[*v].name, r)?;
-    }
+    let eval = edgenerf::train::write_evaluation(gpu, model, scene, dir)?;
     let fmt = |x: Option<f32>, unit: &str| x.map_or("-".to_string(), |x| format!("{x:.3}{unit}"));
     for e in &eval.per_view {
         let depth = e.geometry.as_ref().and_then(|g| g.depth.as_ref()).and_then(|d| d.all).map(|d| d.abs as f32);
@@ -113,7 +121,7 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
         println!(
             "test view {:>3} ({}): PSNR {:.2} dB  SSIM {:.3}  depth error {}  normal error {}",
             e.view,
-            trainer.scene.views[e.view].name,
+            scene.views[e.view].name,
             e.psnr,
             e.ssim,
             fmt(depth, ""),
@@ -140,7 +148,5 @@ pub fn evaluate_and_write(trainer: &mut Trainer, dir: &Path) -> anyhow::Result<(
             fmt(eval.mean_dbe_completeness, ""),
         );
     }
-    let metrics = dir.join("metrics.json");
-    std::fs::write(&metrics, serde_json::to_string_pretty(&eval)?).with_context(|| format!("writing {}", metrics.display()))?;
     Ok(())
 }

@@ -1,15 +1,16 @@
-//! `edgenerf train`: train a field on a scene, with progress, checkpoints, a per-step
-//! CSV log, the effective config in the run directory, and a test-view evaluation.
+//! `edgenerf train`: the front end of a training run. Parses the flags into a
+//! [`RunConfig`], prepares the run directory (refusing to mix runs), loads the scene and
+//! edge masks, then hands the loop to the engine ([`run::train_run`]: checkpoints,
+//! `log.csv`, `config.json`, the time limit) with a progress bar and Ctrl-C as its
+//! observer, and ends with the test-view evaluation ([`crate::cmd::render::evaluate_and_write`]).
 
-use std::io::Write;
 use std::path::PathBuf;
-use std::time::Instant;
 
 use anyhow::{Context, bail};
 use edgenerf::data::Scene;
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::loss::RegVariant;
-use edgenerf::train::{Backend, Checkpoint, RunConfig, StepStats, Trainer, TrainError};
+use edgenerf::train::{Backend, Checkpoint, RunConfig, RunEnd, RunObserver, StepStats, TrainError, Trainer, run};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
@@ -276,10 +277,55 @@ mod interrupt {
     }
 }
 
+/// The progress bar and its message, fed by the library's run loop; Ctrl-C asks it to stop.
+struct Progress {
+    bar: ProgressBar,
+    first_step: u64,
+    psnr_ema: Option<f32>,
+    /// Which prior terms the message shows.
+    distortion: bool,
+    occlusion: bool,
+}
+
+impl RunObserver for Progress {
+    fn step(&mut self, trainer: &Trainer, stats: &StepStats, elapsed_s: f64) {
+        let ema = self.psnr_ema.map_or(stats.psnr, |p| 0.9 * p + 0.1 * stats.psnr);
+        self.psnr_ema = Some(ema);
+        let steps_per_s = (trainer.step_count() - self.first_step) as f64 / elapsed_s.max(1e-9);
+        self.bar.set_position(trainer.step_count());
+        let mut reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
+            format!(" Lz {:.2e} Ln {:.2e}", stats.loss_depth, stats.loss_normal)
+        } else {
+            String::new()
+        };
+        if stats.lambda_tv > 0.0 {
+            reg += &format!(" Ltv {:.2e}", stats.loss_tv);
+        }
+        if self.distortion {
+            reg += &format!(" Ldist {:.2e}", stats.loss_distortion);
+        }
+        if self.occlusion {
+            reg += &format!(" Locc {:.2e}", stats.loss_occlusion);
+        }
+        self.bar.set_message(format!(
+            "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
+            stats.loss_color, ema, stats.samples_per_ray, steps_per_s
+        ));
+    }
+
+    fn stop_requested(&mut self) -> bool {
+        interrupt::requested()
+    }
+
+    fn time_limit_reached(&mut self, step: u64, elapsed_s: f64) {
+        self.bar.println(format!("stopping at step {step}: {elapsed_s:.0} s of training reached train.max_seconds"));
+    }
+}
+
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     prepare_run_dir(&args)?;
     interrupt::install();
-    let ckpt_path = args.out.join("checkpoint.safetensors");
+    let ckpt_path = args.out.join(run::CHECKPOINT);
     let gpu = Gpu::new(gpu_opts)?;
     let mut trainer = if args.resume {
         let mut ckpt = Checkpoint::load(&ckpt_path)?;
@@ -302,7 +348,6 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
     let config = trainer.config().clone();
-    std::fs::write(args.out.join("config.json"), config.to_json())?;
     eprintln!(
         "training {} ({} train views, {} test) on {}; {} parameters; run directory {}",
         config.scene.path.display(),
@@ -313,95 +358,52 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         args.out.display()
     );
 
-    let log_path = args.out.join("log.csv");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)
-        .with_context(|| format!("opening {}", log_path.display()))?;
-    if log.metadata()?.len() == 0 {
-        writeln!(log, "{}", StepStats::CSV_HEADER)?;
-    }
-
     let iters = config.train.iters;
     let bar = ProgressBar::new(iters);
     bar.set_style(
         ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}").unwrap(),
     );
     bar.set_position(trainer.step_count());
-    let start = Instant::now();
-    let first_step = trainer.step_count();
-    let mut psnr_ema = None::<f32>;
+    let mut progress = Progress {
+        bar: bar.clone(),
+        first_step: trainer.step_count(),
+        psnr_ema: None,
+        distortion: config.priors.distortion > 0.0,
+        occlusion: config.priors.occlusion > 0.0,
+    };
     interrupt::set_training(true);
-    while trainer.step_count() < iters {
-        let stats = match trainer.step() {
-            Ok(s) => s,
-            Err(e @ TrainError::NonFinite { .. }) => {
-                bar.abandon();
-                let kept = if ckpt_path.is_file() { format!("the last good checkpoint is kept at {}", ckpt_path.display()) } else { "no checkpoint had been written yet".into() };
-                bail!("{e}\n{kept}");
-            }
-            Err(e) => return Err(e.into()),
-        };
-        let elapsed = start.elapsed().as_secs_f64();
-        writeln!(log, "{}", stats.csv_row(elapsed))?;
-        let ema = psnr_ema.map_or(stats.psnr, |p| 0.9 * p + 0.1 * stats.psnr);
-        psnr_ema = Some(ema);
-        let steps_per_s = (trainer.step_count() - first_step) as f64 / elapsed.max(1e-9);
-        bar.set_position(trainer.step_count());
-        let mut reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
-            format!(" Lz {:.2e} Ln {:.2e}", stats.loss_depth, stats.loss_normal)
-        } else {
-            String::new()
-        };
-        if stats.lambda_tv > 0.0 {
-            reg += &format!(" Ltv {:.2e}", stats.loss_tv);
-        }
-        if config.priors.distortion > 0.0 {
-            reg += &format!(" Ldist {:.2e}", stats.loss_distortion);
-        }
-        if config.priors.occlusion > 0.0 {
-            reg += &format!(" Locc {:.2e}", stats.loss_occlusion);
-        }
-        bar.set_message(format!(
-            "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
-            stats.loss_color, ema, stats.samples_per_ray, steps_per_s
-        ));
-        let every = config.train.checkpoint_every;
-        if every > 0 && trainer.step_count() % every == 0 && trainer.step_count() < iters {
-            trainer.checkpoint()?.save(&ckpt_path)?;
-        }
-        if interrupt::requested() {
-            interrupt::set_training(false);
-            bar.abandon();
-            trainer.checkpoint()?.save(&ckpt_path)?;
-            bail!(
-                "interrupted at step {} of {iters}; checkpoint saved to {} (log.csv has every step). Continue with \
-                 `edgenerf train {} --out {} --resume`",
-                trainer.step_count(),
-                ckpt_path.display(),
-                args.input.scene.display(),
-                args.out.display()
-            );
-        }
-        if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
-            bar.println(format!("stopping at step {}: {elapsed:.0} s of training reached train.max_seconds", trainer.step_count()));
-            break;
-        }
-    }
+    let result = run::train_run(&mut trainer, &args.out, &mut progress);
     interrupt::set_training(false);
+    let summary = match result {
+        Ok(s) => s,
+        Err(e @ TrainError::NonFinite { .. }) => {
+            bar.abandon();
+            let kept = if ckpt_path.is_file() { format!("the last good checkpoint is kept at {}", ckpt_path.display()) } else { "no checkpoint had been written yet".into() };
+            bail!("{e}\n{kept}");
+        }
+        Err(e) => return Err(e.into()),
+    };
+    if summary.end == RunEnd::Stopped {
+        bar.abandon();
+        bail!(
+            "interrupted at step {} of {iters}; checkpoint saved to {} (log.csv has every step). Continue with \
+             `edgenerf train {} --out {} --resume`",
+            summary.last_step,
+            summary.checkpoint.display(),
+            args.input.scene.display(),
+            args.out.display()
+        );
+    }
     bar.finish();
-    trainer.checkpoint()?.save(&ckpt_path)?;
-    let elapsed = start.elapsed().as_secs_f64();
+    let steps = summary.last_step - summary.first_step;
     eprintln!(
-        "trained {} steps in {:.1} s ({:.2} steps/s); checkpoint {}",
-        trainer.step_count() - first_step,
-        elapsed,
-        (trainer.step_count() - first_step) as f64 / elapsed.max(1e-9),
-        ckpt_path.display()
+        "trained {steps} steps in {:.1} s ({:.2} steps/s); checkpoint {}",
+        summary.elapsed_s,
+        steps as f64 / summary.elapsed_s.max(1e-9),
+        summary.checkpoint.display()
     );
     if !args.no_eval {
-        crate::cmd::render::evaluate_and_write(&mut trainer, &args.out.join("test"))?;
+        crate::cmd::render::evaluate_and_write(&trainer.gpu, &mut trainer.model, &trainer.scene, &args.out.join(run::TEST_DIR))?;
     }
     Ok(())
 }

@@ -1,0 +1,327 @@
+//! The training pipeline of one batch: sampling, the field's forward pass, compositing,
+//! every loss, and the backward passes down to the field's gradients.
+//!
+//! [`Pipeline`] owns what a training batch needs beyond the [`Model`]: the batch's GPU
+//! buffers (rays, samples, field outputs, ray outputs, targets, per-ray and per-sample
+//! gradients), the loss kernels, the drop of rays the sample capacity cut, and the
+//! training renderer (the model's render settings with the run's sparse-view priors
+//! and, for images with alpha and `train.random_background`, random backgrounds). The
+//! [`Trainer`](super::Trainer) gives it a host batch and the step's [`StepPlan`]; what
+//! is left to the trainer is what training needs beyond one batch: drawing batches,
+//! the optimizer, schedules and the step counter.
+//!
+//! A batch runs in two calls, so that the caller can check the losses in between:
+//! ```text
+//! Pipeline::forward:
+//!   host: targets re-composited over random backgrounds; random-pose rays appended;
+//!     RegNeRF's annealing of every ray's range; rays, targets and edge weights to the GPU
+//!   sampler (Model::sample) -> field forward (+ analytic normals when L_n is on)
+//!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
+//!     (writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
+//!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
+//!   readbacks: rays dropped, the losses -> BatchLosses
+//! Pipeline::backward: the field's gradients zeroed, then the field backward
+//! ```
+//!
+//! Invariants:
+//! * Neither call changes a parameter: [`Pipeline::forward`] leaves the field's
+//!   gradients alone too, so a caller that stops after it (a non-finite loss) leaves
+//!   the model as it was; [`Pipeline::backward`] overwrites them with this batch's.
+//! * The random-pose rays follow the photometric rays in one sample batch with zero
+//!   photometric weight, so one forward and one backward pass serve every term.
+//! * The batch buffers hold `train.rays_per_batch` photometric rays plus the
+//!   random-pose ones; the sample capacity only grows ([`Pipeline::grow_capacity`]).
+
+use crate::data::Scene;
+use crate::gpu::{Gpu, GpuBuffer};
+use crate::loss::{DepthTv, DropTruncated, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::render::{Background, RenderConfig, RayPriors, Renderer, random_background};
+use crate::samples::{FieldGrads, GpuRay, GpuSample, RayOutput};
+
+use super::TrainError;
+use super::config::{BatchKind, RunConfig};
+use super::model::{BatchBuffers, Model};
+use super::profile::{Stage, StageTimes, end_stage};
+use super::rays::PixelBatch;
+
+/// What a step asks of the pipeline besides its batch: the loss weights in effect at
+/// the step and its seeds.
+#[derive(Clone, Copy, Debug)]
+pub struct StepPlan {
+    /// The step (0-based): seeds the random backgrounds and RegNeRF's annealing.
+    pub step: u64,
+    /// `lambda1`, the weight of the photometric loss.
+    pub lambda_color: f32,
+    /// The edge-guided `L_z` and `L_n` weights (patch batches with a regularizer on at
+    /// this step), `None` when they are off.
+    pub reg: Option<EdgeRegWeights>,
+    /// RegNeRF's depth TV weight (the batch has random-pose patches), `None` when off.
+    pub tv: Option<f32>,
+    /// Seed of the sampler's jitter.
+    pub jitter: u32,
+}
+
+impl StepPlan {
+    /// Whether the field computes analytic normals (the normal regularizer is on).
+    pub fn normals(&self) -> bool {
+        self.reg.is_some_and(|w| w.lambda_normal > 0.0)
+    }
+}
+
+/// A batch's losses, read back after [`Pipeline::forward`]: unweighted, 0 when the term
+/// is off.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BatchLosses {
+    /// The photometric `L_c`: the mean squared error over the rays not dropped.
+    pub color: f32,
+    /// The edge-guided `L_z` and `L_n`.
+    pub depth: f32,
+    pub normal: f32,
+    /// RegNeRF's depth TV on the random-pose patches.
+    pub tv: f32,
+    /// The sparse-view priors: mip-NeRF 360's distortion and FreeNeRF's occlusion.
+    pub distortion: f32,
+    pub occlusion: f32,
+    /// Photometric rays the sample capacity cut, dropped from the losses.
+    pub rays_dropped: u32,
+    /// The priors' weights the losses entered with.
+    pub priors: RayPriors,
+}
+
+impl BatchLosses {
+    /// [`TrainError::NonFinite`] naming the first loss that is not finite.
+    pub fn check_finite(&self, step: u64) -> Result<(), TrainError> {
+        for (value, what) in [
+            (self.color, "the photometric loss"),
+            (self.depth, "L_z"),
+            (self.normal, "L_n"),
+            (self.tv, "the depth TV"),
+            (self.distortion, "the distortion prior"),
+            (self.occlusion, "the occlusion prior"),
+        ] {
+            if !value.is_finite() {
+                return Err(TrainError::NonFinite { step, what: what.into() });
+            }
+        }
+        Ok(())
+    }
+
+    /// The total loss with the weights of `plan`: `lambda1 L_c + lambda2 L_z + lambda3
+    /// L_n + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ`.
+    pub fn total(&self, plan: &StepPlan) -> f32 {
+        let (lambda_depth, lambda_normal) = plan.reg.map_or((0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal));
+        plan.lambda_color * self.color
+            + lambda_depth * self.depth
+            + lambda_normal * self.normal
+            + plan.tv.unwrap_or(0.0) * self.tv
+            + self.priors.lambda_distortion * self.distortion
+            + self.priors.lambda_occlusion * self.occlusion
+    }
+}
+
+/// The per-batch buffers, loss kernels and training renderer of a run.
+pub struct Pipeline {
+    /// Photometric rays per batch, and random-pose rays appended after them.
+    n: u32,
+    n_tv: u32,
+    /// Whether the priors are on (their per-ray terms are read back).
+    priors_on: bool,
+    /// Re-composite targets with alpha over random backgrounds (the renderer's too).
+    random_background: bool,
+    /// The model's renderer settings with the priors, and the random backgrounds.
+    renderer: Renderer,
+    bufs: BatchBuffers,
+    targets: GpuBuffer<[f32; 4]>,
+    d_rays: GpuBuffer<RayOutput>,
+    field_grads: FieldGrads,
+    photometric: Photometric,
+    drop_truncated: DropTruncated,
+    edge_reg: EdgeReg,
+    depth_tv: DepthTv,
+}
+
+impl Pipeline {
+    /// The pipeline of a run with `config` on `scene` whose model is `model` (its render
+    /// settings are the training renderer's).
+    pub fn new(gpu: &Gpu, scene: &Scene, model: &Model, config: &RunConfig) -> Result<Pipeline, TrainError> {
+        let n = config.train.rays_per_batch;
+        let r = &config.regnerf;
+        let n_tv = r.patches(n) * r.patch_size * r.patch_size;
+        // The random-pose rays get the photometric rays' share of samples.
+        let n_all = n + n_tv;
+        let capacity = (config.train.max_samples as u64 * n_all as u64 / n.max(1) as u64).min(u32::MAX as u64) as u32;
+        let random_background = config.train.random_background && scene.train_views().any(|v| v.alpha.is_some());
+        let mut render_config: RenderConfig = *model.render_config();
+        if random_background {
+            render_config.background = Background::Random;
+        }
+        let mut renderer = Renderer::new(gpu, render_config)?;
+        // The priors apply to every rendered ray of a batch, random-pose rays included.
+        renderer.set_priors(config.priors.weights(n_all, scene.near, scene.far));
+        Ok(Pipeline {
+            n,
+            n_tv,
+            priors_on: config.priors.active(),
+            random_background,
+            renderer,
+            bufs: BatchBuffers::new(gpu, n_all, capacity)?,
+            targets: GpuBuffer::zeros(gpu, "targets", n_all as usize)?,
+            d_rays: GpuBuffer::zeros(gpu, "d rays", n_all as usize)?,
+            field_grads: FieldGrads::new(gpu, capacity)?,
+            photometric: Photometric::new(gpu, n_all)?,
+            drop_truncated: DropTruncated::new(gpu)?,
+            edge_reg: EdgeReg::new(gpu, n / 4)?,
+            depth_tv: DepthTv::new(gpu, n_tv)?,
+        })
+    }
+
+    /// Random-pose rays a batch carries after its photometric rays (0: none).
+    pub fn tv_rays(&self) -> u32 {
+        self.n_tv
+    }
+
+    /// Samples a batch holds before rays are cut.
+    pub fn sample_capacity(&self) -> u32 {
+        self.bufs.batch.capacity
+    }
+
+    /// Checks that `batch` fits the pipeline: `train.rays_per_batch` rays and targets,
+    /// and the random-pose rays the regnerf settings make (none when they make none).
+    pub fn check_batch(&self, batch: &PixelBatch) -> Result<(), TrainError> {
+        let error = |message: String| Err(TrainError::Config { source_name: "batch".into(), message });
+        if batch.rays.len() != self.n as usize || batch.targets.len() != self.n as usize {
+            return error(format!("{} rays given, train.rays_per_batch is {}", batch.rays.len(), self.n));
+        }
+        if self.n_tv > 0 && (batch.tv_rays.len() != self.n_tv as usize || batch.tv_z_scale.len() != self.n_tv as usize) {
+            return error(format!("{} random-pose patch rays given, the regnerf settings make {}", batch.tv_rays.len(), self.n_tv));
+        }
+        Ok(())
+    }
+
+    /// Whether the edge-guided regularizers can read `batch`: a patch batch carrying the
+    /// edge weights of every ray.
+    pub fn has_patches(&self, config: &RunConfig, batch: &PixelBatch) -> bool {
+        config.train.batch == BatchKind::Patches && batch.reg.len() == self.n as usize
+    }
+
+    /// Runs `batch` (checked by [`Pipeline::check_batch`]) forward through `model`,
+    /// records every loss and the composite backward, and reads the losses back.
+    /// Touches no parameter and no field gradient (see the module doc). With profiling
+    /// on, charges the sampler and the field forward to their stages.
+    pub fn forward(
+        &mut self,
+        gpu: &Gpu,
+        model: &mut Model,
+        scene: &Scene,
+        batch: PixelBatch,
+        plan: &StepPlan,
+        profile: &mut Option<StageTimes>,
+    ) -> Result<BatchLosses, TrainError> {
+        self.upload(gpu, scene, &model.config, batch, plan);
+        model.sample(gpu, &self.bufs, Some(plan.jitter))?;
+        end_stage(profile, gpu, Stage::Sampler)?;
+        model.field.forward(gpu, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
+        end_stage(profile, gpu, Stage::FieldForward)?;
+        let cut = model.wanted_counts().is_some();
+        self.record_render_and_losses(gpu, model, scene, plan)?;
+        self.read_losses(gpu, plan, cut)
+    }
+
+    /// The field's backward pass over the last [`Pipeline::forward`]: its gradients
+    /// zeroed, then this batch's added (second order through the normals when `L_n` is on).
+    pub fn backward(&self, gpu: &Gpu, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
+        model.field.zero_grads(gpu);
+        model.field.backward(gpu, &self.bufs.batch, &self.field_grads, plan.normals())?;
+        Ok(())
+    }
+
+    /// The sampler's counts of the last batch: samples kept, and samples the rays
+    /// wanted (waits for the GPU).
+    pub fn sample_counts(&self, gpu: &Gpu) -> Result<[u32; 2], TrainError> {
+        let counts = self.bufs.batch.count.read(gpu)?;
+        Ok([counts[0], counts[1]])
+    }
+
+    /// Grows the batch buffers when a batch's rays wanted `wanted` samples, more than
+    /// the capacity ([`super::TrainConfig::grow_capacity`]): to 1.25x `wanted`, rounded
+    /// up to whole 4096-sample blocks, at most what one storage binding of the device
+    /// holds. The capacity never shrinks (one reallocation per new peak, not one per
+    /// step). Returns the new capacity when it grew.
+    pub fn grow_capacity(&mut self, gpu: &Gpu, wanted: u32) -> Result<Option<u32>, TrainError> {
+        let capacity = self.bufs.batch.capacity;
+        let limit = (gpu.limits().max_storage_buffer_binding_size / std::mem::size_of::<GpuSample>() as u64).min(u32::MAX as u64) as u32;
+        if wanted <= capacity || capacity >= limit {
+            return Ok(None);
+        }
+        let grown = (wanted as u64 * 5 / 4).next_multiple_of(4096).min(limit as u64) as u32;
+        let n_all = self.bufs.batch.n_rays;
+        self.bufs = BatchBuffers::new(gpu, n_all, grown)?;
+        self.field_grads = FieldGrads::new(gpu, grown)?;
+        Ok(Some(grown))
+    }
+
+    /// The host side of a batch: targets re-composited over the step's random
+    /// backgrounds, the random-pose rays appended (zero photometric weight), every
+    /// range annealed (RegNeRF), then rays, targets and the edge and depth-TV weights
+    /// uploaded.
+    fn upload(&mut self, gpu: &Gpu, scene: &Scene, config: &RunConfig, mut batch: PixelBatch, plan: &StepPlan) {
+        if plan.reg.is_some() {
+            self.edge_reg.pixel.write(gpu, &batch.reg);
+        }
+        if self.random_background {
+            let loaded_over = scene.background.unwrap_or([1.0; 3]);
+            batch.recomposite(loaded_over, |ray| random_background(plan.step as u32, ray));
+        }
+        let (mut rays, mut targets): (Vec<GpuRay>, Vec<[f32; 4]>) = (batch.rays, batch.targets);
+        if self.n_tv > 0 {
+            rays.extend_from_slice(&batch.tv_rays);
+            targets.resize(rays.len(), [0.0; 4]);
+            self.depth_tv.z_scale.write(gpu, &batch.tv_z_scale);
+        }
+        if let Some(anneal) = config.regnerf.anneal_for(scene) {
+            anneal.apply(&mut rays, plan.step);
+        }
+        self.bufs.rays.write(gpu, &rays);
+        self.targets.write(gpu, &targets);
+    }
+
+    /// One encoder: the drop of capacity-cut rays, composite forward, the losses into
+    /// `d_rays`, composite backward into the per-sample field gradients.
+    fn record_render_and_losses(&self, gpu: &Gpu, model: &Model, scene: &Scene, plan: &StepPlan) -> Result<(), TrainError> {
+        let (bufs, n, n_tv) = (&self.bufs, self.n, self.n_tv);
+        let mut enc = gpu.encoder();
+        // Rays cut by the sample capacity render without their far samples: out of
+        // every loss (their weight and their patch's edge weight to 0).
+        if let Some(wanted) = model.wanted_counts() {
+            let pixels = plan.reg.is_some().then_some(&self.edge_reg.pixel);
+            self.drop_truncated.record(&mut enc, &bufs.batch.ranges, wanted, &self.targets, pixels, n);
+        }
+        self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
+        let rays_out = &bufs.render_out.rays;
+        self.photometric.record(&mut enc, rays_out, &self.targets, &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
+        if let Some(w) = &plan.reg {
+            self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
+        }
+        if let Some(lambda) = plan.tv {
+            let r = &model.config.regnerf;
+            let acc_weight = r.acc_weight_for(scene);
+            self.depth_tv.record(&mut enc, rays_out, &bufs.rays, &self.d_rays, n, n_tv, r.patch_size, lambda, acc_weight);
+        }
+        self.renderer.backward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, &self.d_rays, &self.field_grads, false)?;
+        enc.submit();
+        Ok(())
+    }
+
+    /// The losses of the last batch (waits for the GPU). `cut`: whether the sampler
+    /// counted the rays' wanted samples (then the drop of cut rays ran).
+    fn read_losses(&self, gpu: &Gpu, plan: &StepPlan, cut: bool) -> Result<BatchLosses, TrainError> {
+        let n = self.n;
+        let rays_dropped = if cut { self.drop_truncated.dropped(gpu)? } else { 0 };
+        let color = self.photometric.mse(gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
+        let reg = if plan.reg.is_some() { self.edge_reg.losses(gpu, n / 4)? } else { EdgeRegLosses::default() };
+        let tv = if plan.tv.is_some() { self.depth_tv.loss(gpu, self.n_tv)? } else { 0.0 };
+        let priors = *self.renderer.priors();
+        let (distortion, occlusion) = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { (0.0, 0.0) };
+        Ok(BatchLosses { color, depth: reg.depth, normal: reg.normal, tv, distortion, occlusion, rays_dropped, priors })
+    }
+}

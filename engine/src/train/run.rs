@@ -1,0 +1,142 @@
+//! A training run in its run directory: the loop's cadence around [`Trainer::step`] and
+//! the files it writes, for the CLI (`edgenerf train`) and any library user.
+//!
+//! [`train_run`] writes, in the run directory:
+//! * [`CONFIG`] (`config.json`): the effective config ([`RunConfig::to_json`]), first;
+//! * [`LOG`] (`log.csv`): one row per step ([`StepStats::csv_row`], seconds since the
+//!   start of this call in `elapsed_s`), appended, so a resumed run continues its log;
+//!   the header when the file is new;
+//! * [`CHECKPOINT`] (`checkpoint.safetensors`): every `train.checkpoint_every` steps
+//!   (0: never in between), and when the loop ends, however it ends.
+//!
+//! The loop runs until `train.iters` steps are done, or stops early after the step at
+//! which `train.max_seconds` of training have passed, or after a step at which the
+//! [`RunObserver`] asks it to (Ctrl-C in the CLI). [`write_evaluation`] then renders the
+//! test views into [`TEST_DIR`] (`test/`) with their `metrics.json`.
+//!
+//! Invariants: `config.json`, checkpoints and `metrics.json` are replaced atomically
+//! ([`write_atomic`]); a step's log row is written as soon as the step is done; a step
+//! that fails (a non-finite loss or gradient, [`TrainError::NonFinite`]) ends the run
+//! with its error, writing no row and no checkpoint, so the last good checkpoint stays.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::data::Scene;
+use crate::gpu::Gpu;
+
+use super::evaluate::{Evaluation, evaluate};
+use super::model::Model;
+use super::output::{write_atomic, write_view};
+use super::{RunConfig, StepStats, TrainError, Trainer};
+
+/// The checkpoint's file name in a run directory.
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+/// The effective config's file name.
+pub const CONFIG: &str = "config.json";
+/// The per-step log's file name.
+pub const LOG: &str = "log.csv";
+/// The directory of the test views' renders and `metrics.json`.
+pub const TEST_DIR: &str = "test";
+
+/// What a caller sees of a run while it goes (progress display, stop requests). Every
+/// method has a default that does nothing.
+pub trait RunObserver {
+    /// After each step, with its stats and the seconds since the run started.
+    fn step(&mut self, _trainer: &Trainer, _stats: &StepStats, _elapsed_s: f64) {}
+
+    /// Asked after each step: `true` stops the run there (with its checkpoint saved).
+    fn stop_requested(&mut self) -> bool {
+        false
+    }
+
+    /// The run stops at step `step` because `elapsed_s` reached `train.max_seconds`.
+    fn time_limit_reached(&mut self, _step: u64, _elapsed_s: f64) {}
+}
+
+/// An observer that watches nothing.
+impl RunObserver for () {}
+
+/// Why a run's loop ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunEnd {
+    /// `train.iters` steps are done.
+    Finished,
+    /// `train.max_seconds` of training passed.
+    TimeLimit,
+    /// The observer asked to stop.
+    Stopped,
+}
+
+/// What [`train_run`] did.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// The step the run started at (0, or a resumed checkpoint's) and the one it ended at.
+    pub first_step: u64,
+    pub last_step: u64,
+    /// Wall time of the loop and the final checkpoint.
+    pub elapsed_s: f64,
+    pub end: RunEnd,
+    /// Where the last checkpoint is.
+    pub checkpoint: PathBuf,
+}
+
+/// Trains `trainer` in the run directory `dir` (which must exist) until `train.iters`
+/// steps, writing `config.json`, `log.csv` and checkpoints (see the module doc).
+pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserver) -> Result<RunSummary, TrainError> {
+    let config: RunConfig = trainer.config().clone();
+    write_atomic(&dir.join(CONFIG), config.to_json().as_bytes())?;
+    let checkpoint = dir.join(CHECKPOINT);
+    let log_path = dir.join(LOG);
+    let mut log = open_log(&log_path)?;
+    let iters = config.train.iters;
+    let start = Instant::now();
+    let first_step = trainer.step_count();
+    let mut end = RunEnd::Finished;
+    while trainer.step_count() < iters {
+        let stats = trainer.step()?;
+        let elapsed = start.elapsed().as_secs_f64();
+        writeln!(log, "{}", stats.csv_row(elapsed)).map_err(|e| TrainError::io(&log_path, e))?;
+        observer.step(trainer, &stats, elapsed);
+        let every = config.train.checkpoint_every;
+        if every > 0 && trainer.step_count().is_multiple_of(every) && trainer.step_count() < iters {
+            trainer.checkpoint()?.save(&checkpoint)?;
+        }
+        if observer.stop_requested() {
+            end = RunEnd::Stopped;
+            break;
+        }
+        if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
+            observer.time_limit_reached(trainer.step_count(), elapsed);
+            end = RunEnd::TimeLimit;
+            break;
+        }
+    }
+    trainer.checkpoint()?.save(&checkpoint)?;
+    Ok(RunSummary { first_step, last_step: trainer.step_count(), elapsed_s: start.elapsed().as_secs_f64(), end, checkpoint })
+}
+
+/// `log.csv` opened for appending, with the header written when it is new.
+fn open_log(path: &Path) -> Result<std::fs::File, TrainError> {
+    let io = |e| TrainError::io(path, e);
+    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(io)?;
+    if log.metadata().map_err(io)?.len() == 0 {
+        writeln!(log, "{}", StepStats::CSV_HEADER).map_err(io)?;
+    }
+    Ok(log)
+}
+
+/// Renders the test views of `scene` with `model`, scores them ([`evaluate`]), and
+/// writes the renders ([`write_view`]) and the evaluation as `metrics.json` into `dir`
+/// (created when missing).
+pub fn write_evaluation(gpu: &Gpu, model: &mut Model, scene: &Scene, dir: &Path) -> Result<Evaluation, TrainError> {
+    let (eval, renders) = evaluate(gpu, model, scene)?;
+    for (v, r) in &renders {
+        write_view(dir, &scene.views[*v].name, r)?;
+    }
+    let json = serde_json::to_string_pretty(&eval).expect("evaluations serialize");
+    std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+    write_atomic(&dir.join("metrics.json"), json.as_bytes())?;
+    Ok(eval)
+}
