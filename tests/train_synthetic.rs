@@ -225,13 +225,13 @@ fn a_resumed_model_renders_like_the_trained_one() {
     let ckpt = trainer.checkpoint().unwrap();
     let saved = ckpt.occupancy.clone().expect("an updated grid is saved");
     assert_eq!(saved.len(), 32usize.pow(3));
-    assert!(trainer.model.grid.occupied_cells() < saved.len() as u32, "the test needs a grid that skips something");
+    assert!(trainer.model.occupancy.occupied_cells() < saved.len() as u32, "the test needs a grid that skips something");
 
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("checkpoint.safetensors");
     ckpt.save(&path).unwrap();
     let mut resumed = Trainer::resume(gpu.clone(), scene.clone(), Checkpoint::load(&path).unwrap(), None).unwrap();
-    assert_eq!(resumed.model.grid.occupancy_bits(), trainer.model.grid.occupancy_bits(), "restored bitfield");
+    assert_eq!(resumed.model.occupancy.occupancy_bits(), trainer.model.occupancy.occupancy_bits(), "restored bitfield");
     let (again, _) = resumed.evaluate().unwrap();
     eprintln!("trained {:.3} dB at {:.2} samples/ray, resumed {:.3} dB at {:.2}", trained.mean_psnr, trained.mean_samples_per_ray, again.mean_psnr, again.mean_samples_per_ray);
     assert_eq!(again.mean_samples_per_ray, trained.mean_samples_per_ray);
@@ -241,7 +241,7 @@ fn a_resumed_model_renders_like_the_trained_one() {
     older.occupancy = None;
     let mut rebuilt = Trainer::resume(gpu, scene, older, None).unwrap();
     let (again, _) = rebuilt.evaluate().unwrap();
-    eprintln!("rebuilt grid: {:.3} dB, occupied {} (trained {})", again.mean_psnr, rebuilt.model.grid.occupied_cells(), trainer.model.grid.occupied_cells());
+    eprintln!("rebuilt grid: {:.3} dB, occupied {} (trained {})", again.mean_psnr, rebuilt.model.occupancy.occupied_cells(), trainer.model.occupancy.occupied_cells());
     assert!((trained.mean_psnr - again.mean_psnr).abs() < 0.2, "{} vs {}", trained.mean_psnr, again.mean_psnr);
 }
 

@@ -1,12 +1,12 @@
 // Helpers shared by the sampler kernels (owners in engine/src/sampler/): the occupancy
 // grid's geometry and cell lookup, a ray/box slab test, and (through common/hash.wgsl)
-// the PCG hash RNG. Include only; mirrors `GridGeom` in engine/src/sampler/grid.rs.
+// the PCG hash RNG. Include only; mirrors `OccupancyGeom` in engine/src/sampler/occupancy.rs.
 
 //#include "common/hash.wgsl"
 
 // The occupancy grid: `res`^3 cells over [aabb_min, aabb_max], cell index
 // x + res * (y + res * z); occupancy bit of cell c is bit (c & 31) of word c >> 5.
-struct GridGeom {
+struct OccupancyGeom {
     aabb_min: vec3<f32>,
     res: u32,
     aabb_max: vec3<f32>,
@@ -14,22 +14,22 @@ struct GridGeom {
 }
 
 // Integer cell coordinates of point p (may lie outside [0, res)).
-fn grid_cell_coord(g: GridGeom, p: vec3<f32>) -> vec3<i32> {
+fn grid_cell_coord(g: OccupancyGeom, p: vec3<f32>) -> vec3<i32> {
     let u = (p - g.aabb_min) / (g.aabb_max - g.aabb_min) * f32(g.res);
     return vec3<i32>(floor(u));
 }
 
-fn grid_cell_inside(g: GridGeom, c: vec3<i32>) -> bool {
+fn grid_cell_inside(g: OccupancyGeom, c: vec3<i32>) -> bool {
     let r = i32(g.res);
     return all(c >= vec3<i32>(0)) && all(c < vec3<i32>(r));
 }
 
-fn grid_cell_index(g: GridGeom, c: vec3<i32>) -> u32 {
+fn grid_cell_index(g: OccupancyGeom, c: vec3<i32>) -> u32 {
     return u32(c.x) + g.res * (u32(c.y) + g.res * u32(c.z));
 }
 
 // Corner of cell coordinate c (c may equal res for the far corner).
-fn grid_cell_corner(g: GridGeom, c: vec3<i32>) -> vec3<f32> {
+fn grid_cell_corner(g: OccupancyGeom, c: vec3<i32>) -> vec3<f32> {
     return g.aabb_min + (g.aabb_max - g.aabb_min) * (vec3<f32>(c) / f32(g.res));
 }
 

@@ -15,7 +15,7 @@
 //#include "sampler/common.wgsl"
 
 struct Params {
-    geom: GridGeom,
+    geom: OccupancyGeom,
     n_rays: u32,
     capacity: u32,
     max_per_ray: u32,

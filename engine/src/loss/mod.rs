@@ -3,17 +3,14 @@
 //!
 //! Owns the photometric loss ([`photometric`]) and the edge-guided depth/normal
 //! regularizers of EdgeNeRF ([`edge_reg`]) and RegNeRF's depth total variation on patches
-//! from random poses ([`depth_tv`]), and the drop of rays the sample capacity cut
-//! ([`truncated`], which zeroes those rays' loss weights before the losses run). Invariant: a loss *writes* or *adds*
+//! from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
 //! `dL/d RayOutput` per ray into one shared gradient buffer, never touching sampler,
 //! field or renderer state; the photometric loss writes (it runs first), the others add.
 
 pub mod depth_tv;
 pub mod edge_reg;
 pub mod photometric;
-pub mod truncated;
 
 pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;
-pub use truncated::DropTruncated;

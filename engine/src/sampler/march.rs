@@ -30,7 +30,7 @@ use glam::Vec3;
 use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
 use crate::samples::{GpuRay, SampleBatch};
 
-use super::grid::GridGeom;
+use super::occupancy::OccupancyGeom;
 use super::intervals::RayIntervals;
 use super::scan::ExclusiveScan;
 use super::{OccupancyGrid, SamplerConfig, SamplerError};
@@ -53,7 +53,7 @@ const WRITE: KernelSpec = KernelSpec { file: "sampler/march.wgsl", entry: "write
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct Params {
-    geom: GridGeom,
+    geom: OccupancyGeom,
     n_rays: u32,
     capacity: u32,
     max_per_ray: u32,
@@ -155,7 +155,7 @@ impl Sampler {
         let dummy = &self.dummy.as_ref().unwrap().buffer;
         let mut enc = gpu.encoder();
         let (geom, occupancy, intervals, interval_counts, bits) = match march {
-            March::Uniform => (GridGeom { res: 1, n_cells: 1, ..Default::default() }, 0, dummy, dummy, dummy),
+            March::Uniform => (OccupancyGeom { res: 1, n_cells: 1, ..Default::default() }, 0, dummy, dummy, dummy),
             March::Occupancy(grid) => {
                 work.intervals.encode(gpu, &mut enc, grid, rays, n_rays)?;
                 (

@@ -2,15 +2,17 @@
 //!
 //! Owns the occupancy grid ([`OccupancyGrid`]), the BVH over its occupied bricks
 //! ([`bricks`]), the per-ray occupied intervals ([`intervals`]), sample placement and
-//! compaction ([`Sampler`]) and the prefix sum that compacts ([`scan`]). Kernels live
+//! compaction ([`Sampler`]), the prefix sum that compacts ([`scan`]), and the drop of
+//! the rays the batch capacity cut from the losses ([`truncated`]). Kernels live
 //! under `kernels/sampler/`; each has exactly one owner here:
 //!
 //! | kernel | owner |
 //! |---|---|
-//! | `sampler/grid.wgsl` | [`grid`] (query points, scatter-max, EMA, mean, bitfield) |
+//! | `sampler/occupancy.wgsl` | [`occupancy`] (query points, scatter-max, EMA, mean, bitfield) |
 //! | `sampler/intervals.wgsl` | [`intervals`] (BVH traversal per ray) |
 //! | `sampler/scan.wgsl` | [`scan`] (exclusive prefix sum) |
 //! | `sampler/march.wgsl` | [`march`] (count / write samples) |
+//! | `sampler/truncated.wgsl` | [`truncated`] (zero the loss weights of cut rays) |
 //! | `sampler/common.wgsl` | include only: grid geometry, slab test, PCG hash |
 //!
 //! # How the train loop drives it
@@ -77,14 +79,16 @@
 //!   its first samples and later rays get none; `count[1]` tells how many were wanted.
 
 pub mod bricks;
-pub mod grid;
+pub mod occupancy;
 pub mod intervals;
 pub mod march;
 pub mod scan;
+pub mod truncated;
 
-pub use grid::{GridQuery, GridUpdate, OccupancyGrid};
+pub use occupancy::{OccupancyQuery, OccupancyUpdate, OccupancyGrid};
 pub use march::{March, Sampler};
 pub use scan::ExclusiveScan;
+pub use truncated::DropTruncated;
 
 use serde::{Deserialize, Serialize};
 

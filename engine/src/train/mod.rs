@@ -149,7 +149,7 @@ pub struct StepStats {
     pub loss_tv: f32,
     pub lambda_tv: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses
-    /// ([`crate::loss::truncated`]); `loss_color` and `psnr` are over the others.
+    /// ([`crate::sampler::truncated`]); `loss_color` and `psnr` are over the others.
     pub rays_dropped: u32,
     /// The sparse-view priors ([`crate::render::priors`]; 0 when off), unweighted: mip-NeRF
     /// 360's distortion and FreeNeRF's occlusion term.
@@ -394,7 +394,7 @@ impl Trainer {
         }
         self.pipeline.check_batch(&batch)?;
         self.model.set_levels_for_step(step);
-        self.model.update_grid(&gpu, step, self.model.grid_seed(step), false)?;
+        self.model.update_occupancy(&gpu, step, self.model.occupancy_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);
         let losses = self.pipeline.forward(&gpu, &mut self.model, &self.scene, batch, &plan, &mut self.profile)?;
@@ -463,7 +463,7 @@ impl Trainer {
             config: self.config().clone(),
             field: self.model.field.export(&self.gpu)?,
             optimizer: self.adam.export_state(&self.gpu)?,
-            occupancy: self.model.grid.export_density(&self.gpu)?,
+            occupancy: self.model.occupancy.export_density(&self.gpu)?,
         })
     }
 

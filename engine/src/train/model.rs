@@ -4,7 +4,7 @@
 //! Training batches run through the same model in [`super::pipeline`].
 //!
 //! Invariants: the model never changes parameters (the [`Trainer`](super::Trainer)
-//! does); the occupancy grid is refreshed only through [`Model::update_grid`], from the
+//! does); the occupancy grid is refreshed only through [`Model::update_occupancy`], from the
 //! field's own densities, or restored from a checkpoint; rendering for images uses no
 //! jitter (deterministic output).
 
@@ -12,7 +12,7 @@ use crate::data::Scene;
 use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
-use crate::sampler::{GridUpdate, March, OccupancyGrid, Sampler, SamplerMode};
+use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
 use crate::samples::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
 
 use super::TrainError;
@@ -84,10 +84,10 @@ impl BatchBuffers {
 pub struct Model {
     pub config: RunConfig,
     pub field: Box<dyn Field>,
-    pub grid: OccupancyGrid,
+    pub occupancy: OccupancyGrid,
     sampler: Sampler,
     renderer: Renderer,
-    grid_densities: Option<GpuBuffer<f32>>,
+    occupancy_densities: Option<GpuBuffer<f32>>,
     render_buffers: Option<BatchBuffers>,
 }
 
@@ -159,15 +159,15 @@ impl Model {
             Backend::Grid => Box::new(GridField::new(gpu, &config.field, scene.aabb)?),
             Backend::Mlp => Box::new(MlpField::new(gpu, &config.mlp, scene.aabb, footprint(scene, &config.sampler))?),
         };
-        let mut grid = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
+        let mut occupancy = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
         if config.sampler.seen_cells_only && scene.ndc.is_none() {
-            grid.restrict_to_seen(gpu, seen_by_training_cameras(scene))?;
+            occupancy.restrict_to_seen(gpu, seen_by_training_cameras(scene))?;
         }
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
         render_config.background = background_of(&config, scene);
         let renderer = Renderer::new(gpu, render_config)?;
-        Ok(Model { config, field, grid, sampler, renderer, grid_densities: None, render_buffers: None })
+        Ok(Model { config, field, occupancy, sampler, renderer, occupancy_densities: None, render_buffers: None })
     }
 
     /// The model of a checkpoint, ready to render, without optimizer state: its config
@@ -183,10 +183,10 @@ impl Model {
         model.field.import(gpu, &ckpt.field)?;
         match &ckpt.occupancy {
             Some(density) if model.config.sampler.mode == SamplerMode::Occupancy => {
-                model.grid.restore_density(gpu, density)?;
+                model.occupancy.restore_density(gpu, density)?;
             }
             _ => {
-                model.update_grid(gpu, ckpt.step, model.grid_seed(ckpt.step), true)?;
+                model.update_occupancy(gpu, ckpt.step, model.occupancy_seed(ckpt.step), true)?;
             }
         }
         // The levels the last trained step used, as the trained model had them (after
@@ -211,7 +211,7 @@ impl Model {
     }
 
     /// The seed of the occupancy grid's random cells at `step`.
-    pub fn grid_seed(&self, step: u64) -> u32 {
+    pub fn occupancy_seed(&self, step: u64) -> u32 {
         (self.config.train.seed as u32).wrapping_mul(0x9E37_79B9) ^ (step as u32)
     }
 
@@ -222,7 +222,7 @@ impl Model {
 
     /// Fraction of the occupancy grid's cells marked occupied.
     pub fn occupied_fraction(&self) -> f32 {
-        self.grid.occupied_cells() as f32 / self.config.sampler.resolution.pow(3) as f32
+        self.occupancy.occupied_cells() as f32 / self.config.sampler.resolution.pow(3) as f32
     }
 
     /// Per-ray sample counts of the last sampled batch before the capacity cap
@@ -236,18 +236,18 @@ impl Model {
     /// checkpoint: the grid starts empty) refreshes every cell, as the warm-up does;
     /// past the warm-up a regular update visits only a quarter of the cells plus the
     /// occupied ones, which would leave most of an empty grid empty.
-    pub fn update_grid(&mut self, gpu: &Gpu, step: u64, seed: u32, force: bool) -> Result<Option<GridUpdate>, TrainError> {
-        if self.config.sampler.mode == SamplerMode::Uniform || !(force || self.grid.should_update(step as u32)) {
+    pub fn update_occupancy(&mut self, gpu: &Gpu, step: u64, seed: u32, force: bool) -> Result<Option<OccupancyUpdate>, TrainError> {
+        if self.config.sampler.mode == SamplerMode::Uniform || !(force || self.occupancy.should_update(step as u32)) {
             return Ok(None);
         }
         let query_step = if force { 0 } else { step as u32 };
-        let query = self.grid.query_points(gpu, query_step, seed)?;
-        if self.grid_densities.as_ref().is_none_or(|b| b.len() < query.count as usize) {
-            self.grid_densities = Some(GpuBuffer::zeros(gpu, "grid densities", query.positions.len())?);
+        let query = self.occupancy.query_points(gpu, query_step, seed)?;
+        if self.occupancy_densities.as_ref().is_none_or(|b| b.len() < query.count as usize) {
+            self.occupancy_densities = Some(GpuBuffer::zeros(gpu, "grid densities", query.positions.len())?);
         }
-        let densities = self.grid_densities.as_ref().unwrap();
+        let densities = self.occupancy_densities.as_ref().unwrap();
         self.field.density(gpu, &query.positions, query.count, densities)?;
-        Ok(Some(self.grid.update(gpu, &query.cells, densities, query.count)?))
+        Ok(Some(self.occupancy.update(gpu, &query.cells, densities, query.count)?))
     }
 
     /// Samples `bufs.rays[..n]` into `bufs.batch` and runs the field forward.
@@ -268,7 +268,7 @@ impl Model {
     pub(super) fn sample(&mut self, gpu: &Gpu, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
-            SamplerMode::Occupancy => March::Occupancy(&self.grid),
+            SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
             SamplerMode::Uniform => March::Uniform,
         };
         self.sampler.sample(gpu, march, &bufs.rays, &bufs.batch, jitter_seed)?;

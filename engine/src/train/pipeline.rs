@@ -34,8 +34,9 @@
 
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer};
-use crate::loss::{DepthTv, DropTruncated, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer, random_background};
+use crate::sampler::DropTruncated;
 use crate::samples::{FieldGrads, GpuRay, GpuSample, RayOutput};
 
 use super::TrainError;

@@ -1,4 +1,7 @@
-//! Rays cut by the batch's sample capacity, dropped from the losses.
+//! Rays cut by the batch's sample capacity, dropped from the losses. The sampler owns
+//! the cut, so it owns the drop: the kernel zeroes the loss weights of those rays in
+//! buffers the caller hands it (the targets' weight column, the edge regularizer's
+//! per-pixel weights), before any loss runs.
 //!
 //! The sampler packs the samples of a batch's rays up to its capacity; a ray past the
 //! cut keeps only its first samples or none ([`Sampler::wanted_counts`]) and renders
@@ -13,15 +16,15 @@
 //! every sample it wanted is never changed; the photometric loss stays normalized by
 //! the batch size, so dropping rays lowers the step's colour gradient in proportion.
 //!
-//! Owner of `kernels/loss/truncated.wgsl`.
+//! Owner of `kernels/sampler/truncated.wgsl`.
 //!
-//! [`Sampler::wanted_counts`]: crate::sampler::Sampler::wanted_counts
+//! [`Sampler::wanted_counts`]: super::Sampler::wanted_counts
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::samples::SampleRange;
 
 const SPEC: KernelSpec = KernelSpec {
-    file: "loss/truncated.wgsl",
+    file: "sampler/truncated.wgsl",
     entry: "drop_truncated",
     bindings: &[
         Binding::Params,

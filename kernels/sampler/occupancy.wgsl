@@ -1,4 +1,4 @@
-// Occupancy grid maintenance (owner: engine/src/sampler/grid.rs): choosing and
+// Occupancy grid maintenance (owner: engine/src/sampler/occupancy.rs): choosing and
 // jittering the query points of an update, the scatter-max of the densities the caller
 // evaluated there, the EMA step, a deterministic sum of the grid for its mean, and
 // the thresholded occupancy bitfield.
@@ -9,7 +9,7 @@
 const REDUCE_WG: u32 = 256u;
 
 struct QueryParams {
-    geom: GridGeom,
+    geom: OccupancyGeom,
     // Points to produce.
     count: u32,
     seed: u32,

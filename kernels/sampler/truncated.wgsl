@@ -1,4 +1,4 @@
-// Drops the rays the batch's sample capacity cut (owner: engine/src/loss/truncated.rs):
+// Drops the rays the batch's sample capacity cut (owner: engine/src/sampler/truncated.rs):
 // one thread per photometric ray r < n_rays. A ray is cut iff it kept fewer samples
 // than it wanted (ranges[r].count < wanted[r]); it then renders without its far
 // samples (or none at all), so it must not be compared with its pixel: its target

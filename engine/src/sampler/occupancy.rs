@@ -1,7 +1,7 @@
 //! The occupancy grid: a `resolution`^3 density grid over the scene AABB, its
 //! occupancy bitfield, and the brick BVH built from it.
 //!
-//! Owner of `kernels/sampler/grid.wgsl`. Updating is two-phase so that the grid never
+//! Owner of `kernels/sampler/occupancy.wgsl`. Updating is two-phase so that the grid never
 //! knows the field: [`OccupancyGrid::query_points`] chooses cells and one jittered
 //! point in each; the caller evaluates density there; [`OccupancyGrid::update`] takes
 //! the densities back and, on the GPU: scatters the maximum density per queried cell
@@ -36,7 +36,7 @@ use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
 use super::bricks::{BrickBvh, BrickLayout, GpuBvhNode};
 use super::{SamplerConfig, SamplerError, fold_groups};
 
-const FILE: &str = "sampler/grid.wgsl";
+const FILE: &str = "sampler/occupancy.wgsl";
 
 const QUERY: KernelSpec = KernelSpec {
     file: FILE,
@@ -66,10 +66,10 @@ const THRESHOLD: KernelSpec = KernelSpec {
 const REDUCE_GROUPS: u32 = 256;
 const REDUCE_WG: u32 = 256;
 
-/// Grid geometry as the kernels read it (`GridGeom` in `kernels/sampler/common.wgsl`).
+/// Grid geometry as the kernels read it (`OccupancyGeom` in `kernels/sampler/common.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GridGeom {
+pub struct OccupancyGeom {
     pub aabb_min: [f32; 3],
     pub res: u32,
     pub aabb_max: [f32; 3],
@@ -79,7 +79,7 @@ pub struct GridGeom {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct QueryParams {
-    geom: GridGeom,
+    geom: OccupancyGeom,
     count: u32,
     seed: u32,
     all_cells: u32,
@@ -99,7 +99,7 @@ struct CountParams {
 
 /// The points of one update: evaluate density at `positions[..count]` (xyz; w = 0)
 /// and pass it to [`OccupancyGrid::update`] with `cells`.
-pub struct GridQuery {
+pub struct OccupancyQuery {
     pub positions: GpuBuffer<[f32; 4]>,
     pub cells: GpuBuffer<u32>,
     pub count: u32,
@@ -107,7 +107,7 @@ pub struct GridQuery {
 
 /// What an update did.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GridUpdate {
+pub struct OccupancyUpdate {
     /// Mean of all cells after the EMA.
     pub mean_density: f32,
     /// Occupied cells and bricks after the update.
@@ -121,7 +121,7 @@ pub struct GridUpdate {
 pub struct OccupancyGrid {
     config: SamplerConfig,
     layout: BrickLayout,
-    geom: GridGeom,
+    geom: OccupancyGeom,
     density: GpuBuffer<f32>,
     scratch: GpuBuffer<u32>,
     partials: GpuBuffer<f32>,
@@ -150,7 +150,7 @@ impl OccupancyGrid {
         let res = config.resolution;
         let n_cells = res * res * res;
         let n_words = n_cells.div_ceil(32) as usize;
-        let geom = GridGeom { aabb_min: aabb[0].to_array(), res, aabb_max: aabb[1].to_array(), n_cells };
+        let geom = OccupancyGeom { aabb_min: aabb[0].to_array(), res, aabb_max: aabb[1].to_array(), n_cells };
         let mut host_bits = vec![u32::MAX; n_words];
         if !n_cells.is_multiple_of(32) {
             host_bits[n_words - 1] = (1u32 << (n_cells % 32)) - 1;
@@ -184,7 +184,7 @@ impl OccupancyGrid {
 
     /// Chooses the cells of the update at `step` and one jittered point in each
     /// (see the module doc); deterministic for `(step < warmup, seed, occupancy)`.
-    pub fn query_points(&self, gpu: &Gpu, step: u32, seed: u32) -> Result<GridQuery, SamplerError> {
+    pub fn query_points(&self, gpu: &Gpu, step: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
         let n_cells = self.geom.n_cells;
         let (all_cells, n_uniform, count) = if step < self.config.warmup_steps {
             (1, 0, n_cells)
@@ -207,7 +207,7 @@ impl OccupancyGrid {
         });
         enc.dispatch_threads(&kernel, &[&params, &self.occupied.buffer, &positions.buffer, &cells.buffer], count);
         enc.submit();
-        Ok(GridQuery { positions, cells, count })
+        Ok(OccupancyQuery { positions, cells, count })
     }
 
     /// Folds the densities evaluated at a query's points into the grid, rebuilds the
@@ -219,7 +219,7 @@ impl OccupancyGrid {
         cells: &GpuBuffer<u32>,
         densities: &GpuBuffer<f32>,
         count: u32,
-    ) -> Result<GridUpdate, SamplerError> {
+    ) -> Result<OccupancyUpdate, SamplerError> {
         assert!(
             cells.len() >= count as usize && densities.len() >= count as usize,
             "update of {count} points with {} cells and {} densities",
@@ -266,7 +266,7 @@ impl OccupancyGrid {
         if changed {
             self.rebuild(gpu, bits)?;
         }
-        Ok(GridUpdate {
+        Ok(OccupancyUpdate {
             mean_density,
             occupied_cells: self.n_occupied,
             occupied_bricks: self.bvh.bricks.len() as u32,
@@ -323,7 +323,7 @@ impl OccupancyGrid {
     /// Restores densities saved by [`OccupancyGrid::export_density`] and derives the
     /// bitfield, occupied list and BVH from them exactly as an update would (an update
     /// that queries no cell). Errors if `density` does not have one value per cell.
-    pub fn restore_density(&mut self, gpu: &Gpu, density: &[f32]) -> Result<GridUpdate, SamplerError> {
+    pub fn restore_density(&mut self, gpu: &Gpu, density: &[f32]) -> Result<OccupancyUpdate, SamplerError> {
         if density.len() != self.geom.n_cells as usize {
             return Err(SamplerError::Config(format!(
                 "{} saved occupancy densities for a grid of {} cells (resolution {})",
@@ -375,7 +375,7 @@ impl OccupancyGrid {
     }
 
     /// Geometry as uploaded to kernels.
-    pub fn geom(&self) -> GridGeom {
+    pub fn geom(&self) -> OccupancyGeom {
         self.geom
     }
 
