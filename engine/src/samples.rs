@@ -58,6 +58,22 @@ impl GpuRay {
     }
 }
 
+/// Per-ray side output of the renderer's forward pass, read by its backward pass and
+/// by the photometric loss (the background behind the ray).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct RayAux {
+    /// The background colour composited behind this ray.
+    pub background: [f32; 3],
+    /// `K`: the number of leading samples that contributed (before early termination).
+    pub n_contrib: u32,
+    /// The ray's distortion `D` and occlusion `O` ([`crate::render::priors`], unweighted; `O` over
+    /// the renderer's occlusion range, 0 when none is set).
+    pub distortion: f32,
+    pub occlusion: f32,
+    pub _pad: [u32; 2],
+}
+
 /// Where the samples of one ray are.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq, Eq)]

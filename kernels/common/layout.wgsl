@@ -26,3 +26,15 @@ struct RayOutput {
     normal: vec3<f32>,
     depth: f32,
 }
+
+// Per-ray side output of the renderer's forward pass, read by its backward pass and
+// by the photometric loss (the background composited behind the ray).
+struct RayAux {
+    background: vec3<f32>,
+    n_contrib: u32,
+    // The ray's unweighted distortion D and occlusion O (render/composite.wgsl).
+    distortion: f32,
+    occlusion: f32,
+    _pad0: u32,
+    _pad1: u32,
+}

@@ -1,7 +1,10 @@
 // Photometric loss L_c (owner: engine/src/loss/photometric.rs): mean squared error
 // over rays and RGB channels, with per-ray weights. Writes dL/d(RayOutput) (colour
 // part; the other fields zero, so regularizers add onto it) and each ray's weighted
-// squared error for logging.
+// squared error for logging. Targets of pixels with alpha are composited here onto the
+// background the renderer put behind the ray (RayAux.background; random backgrounds),
+// replacing the colour the images were composited over when loaded:
+//   c* = c + (background - loaded_over) (1 - alpha).
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
@@ -10,8 +13,12 @@ struct Params {
     n_rays: u32,
     // weight / (3 * sum of ray weights): the factor that makes L a mean.
     scale: f32,
+    // 1: composite the targets over the rendered backgrounds (above); 0: as given.
+    recomposite: u32,
     _pad0: u32,
-    _pad1: u32,
+    // The colour the loaded images were composited over.
+    loaded_over: vec3<f32>,
+    _pad1: f32,
 }
 
 @group(0) @binding(0) var<storage, read> params: Params;
@@ -20,6 +27,10 @@ struct Params {
 @group(0) @binding(2) var<storage, read> targets: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> d_rays: array<RayOutput>;
 @group(0) @binding(4) var<storage, read_write> sq_error: array<f32>;
+// The renderer's per-ray side output and each target's alpha (1: opaque or none);
+// read only when params.recomposite is 1.
+@group(0) @binding(5) var<storage, read> aux: array<RayAux>;
+@group(0) @binding(6) var<storage, read> alpha: array<f32>;
 
 @compute @workgroup_size(WG_SIZE)
 fn photometric(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -27,7 +38,10 @@ fn photometric(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     if (r >= params.n_rays) {
         return;
     }
-    let want = targets[r];
+    var want = targets[r];
+    if (params.recomposite != 0u) {
+        want = vec4<f32>(want.xyz + (aux[r].background - params.loaded_over) * (1.0 - alpha[r]), want.w);
+    }
     let diff = rays[r].rgb - want.xyz;
     var d: RayOutput;
     d.rgb = 2.0 * params.scale * want.w * diff;

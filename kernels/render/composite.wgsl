@@ -60,16 +60,7 @@ struct Params {
     _pad2: u32,
 }
 
-// Per-ray side output of the forward pass, read by the backward pass and the losses.
-struct RayAux {
-    background: vec3<f32>,
-    n_contrib: u32,
-    // The ray's unweighted distortion D and occlusion O (see the header).
-    distortion: f32,
-    occlusion: f32,
-    _pad0: u32,
-    _pad1: u32,
-}
+// RayAux (common/layout.wgsl): per-ray side output of the forward pass.
 
 @group(0) @binding(0) var<storage, read> params_buffer: Params;
 // Copied to private memory as the first statement of each entry point, before any

@@ -3,15 +3,30 @@
 //! `L_c = sum_r w_r |c_r - c*_r|^2 / (3 sum_r w_r)`, so `dL/dc_r = 2 w_r (c_r - c*_r) / (3 sum w)`.
 //! PSNR of a batch is `-10 log10(L_c)` (with unit weights).
 //!
+//! Random backgrounds (scenes with alpha): the images were composited over one colour
+//! when loaded (`loaded_over`); the renderer draws a random background per ray and
+//! stores it in [`RayAux::background`]. With [`Recomposite`] the kernel composites each
+//! target with alpha onto that same background first,
+//! `c* = c + (background - loaded_over) (1 - alpha)`, so the target and the render
+//! agree on what lies behind the object (no host round trip of the backgrounds).
+//!
 //! Owner of `kernels/loss/photometric.wgsl`.
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::RayOutput;
+use crate::samples::{RayAux, RayOutput};
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/photometric.wgsl",
     entry: "photometric",
-    bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
+    bindings: &[
+        Binding::Params,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadWrite,
+        Binding::ReadWrite,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+    ],
 };
 
 #[repr(C)]
@@ -19,7 +34,20 @@ const SPEC: KernelSpec = KernelSpec {
 struct Params {
     n_rays: u32,
     scale: f32,
-    _pad: [u32; 2],
+    recomposite: u32,
+    _pad0: u32,
+    loaded_over: [f32; 3],
+    _pad1: f32,
+}
+
+/// Targets with alpha to composite onto the rendered backgrounds (module doc).
+pub struct Recomposite<'a> {
+    /// The renderer's side output of the rays being scored.
+    pub aux: &'a GpuBuffer<RayAux>,
+    /// Each target's alpha; 1 where the pixel is opaque or its image has none.
+    pub alpha: &'a GpuBuffer<f32>,
+    /// The colour the loaded images were composited over.
+    pub loaded_over: [f32; 3],
 }
 
 /// The photometric loss kernel and its per-ray error buffer.
@@ -27,21 +55,32 @@ pub struct Photometric {
     kernel: std::sync::Arc<crate::gpu::Kernel>,
     /// Weighted squared error per ray (sum over channels) of the last launch.
     pub sq_error: GpuBuffer<f32>,
+    /// Bound in place of the recompositing inputs when there are none.
+    placeholder_aux: GpuBuffer<RayAux>,
+    placeholder_alpha: GpuBuffer<f32>,
 }
 
 impl Photometric {
     pub fn new(gpu: &Gpu, max_rays: u32) -> Result<Self, GpuError> {
-        Ok(Self { kernel: gpu.kernel(&SPEC)?, sq_error: GpuBuffer::zeros(gpu, "photometric error", max_rays as usize)? })
+        Ok(Self {
+            kernel: gpu.kernel(&SPEC)?,
+            sq_error: GpuBuffer::zeros(gpu, "photometric error", max_rays as usize)?,
+            placeholder_aux: GpuBuffer::zeros(gpu, "photometric: no aux", 1)?,
+            placeholder_alpha: GpuBuffer::zeros(gpu, "photometric: no alpha", 1)?,
+        })
     }
 
     /// Records the loss of `rays[..n]` against `targets[..n]` (rgb + weight), writing
     /// `d_rays[..n]` (overwritten). `weight_sum` is the sum of the targets' weights;
-    /// `lambda` scales the loss.
+    /// `lambda` scales the loss; `recomposite`: targets with alpha onto the rendered
+    /// backgrounds first (module doc).
+    #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
         enc: &mut Encoder,
         rays: &GpuBuffer<RayOutput>,
         targets: &GpuBuffer<[f32; 4]>,
+        recomposite: Option<&Recomposite>,
         d_rays: &GpuBuffer<RayOutput>,
         n: u32,
         weight_sum: f32,
@@ -49,11 +88,22 @@ impl Photometric {
     ) {
         assert!(rays.len() >= n as usize && targets.len() >= n as usize && d_rays.len() >= n as usize);
         assert!(self.sq_error.len() >= n as usize, "photometric buffer for {} rays, batch of {n}", self.sq_error.len());
+        if let Some(rc) = recomposite {
+            assert!(rc.aux.len() >= n as usize && rc.alpha.len() >= n as usize, "recompositing inputs shorter than the batch");
+        }
         let scale = if weight_sum > 0.0 { lambda / (3.0 * weight_sum) } else { 0.0 };
-        let params = enc.params(&Params { n_rays: n, scale, _pad: [0; 2] });
+        let params = enc.params(&Params {
+            n_rays: n,
+            scale,
+            recomposite: recomposite.is_some() as u32,
+            _pad0: 0,
+            loaded_over: recomposite.map_or([0.0; 3], |rc| rc.loaded_over),
+            _pad1: 0.0,
+        });
+        let (aux, alpha) = recomposite.map_or((&self.placeholder_aux, &self.placeholder_alpha), |rc| (rc.aux, rc.alpha));
         enc.dispatch_threads(
             &self.kernel,
-            &[&params, &rays.buffer, &targets.buffer, &d_rays.buffer, &self.sq_error.buffer],
+            &[&params, &rays.buffer, &targets.buffer, &d_rays.buffer, &self.sq_error.buffer, &aux.buffer, &alpha.buffer],
             n,
         );
     }
@@ -98,7 +148,7 @@ mod tests {
         let targets_buf = GpuBuffer::from_slice(&gpu, "targets", &targets).unwrap();
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", n as usize).unwrap();
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, &d, n, weight_sum, 1.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0);
         enc.submit();
         let mse = loss.mse(&gpu, n as usize, weight_sum).unwrap();
         assert!((mse as f64 - loss_of(&rays)).abs() < 1e-6);
@@ -115,5 +165,51 @@ mod tests {
             }
             assert_eq!(grads[r].depth, 0.0);
         }
+    }
+
+    #[test]
+    fn targets_with_alpha_are_composited_onto_the_rendered_background() {
+        let gpu = crate::gpu::test_gpu(false);
+        let loaded_over = [1.0f32, 1.0, 1.0];
+        // Ray 0: a quarter-opaque pixel of foreground 0.2 loaded over white (0.8);
+        // ray 1: no alpha; ray 2: opaque; ray 3: fully transparent.
+        let targets: Vec<[f32; 4]> = vec![[0.8, 0.8, 0.8, 1.0], [0.3, 0.4, 0.5, 1.0], [0.9, 0.9, 0.9, 1.0], [1.0; 4]];
+        let alpha = vec![0.25f32, 1.0, 1.0, 0.0];
+        let backgrounds = [[0.0, 0.5, 1.0], [0.7, 0.1, 0.3], [0.2, 0.2, 0.9], [0.6, 0.3, 0.0]];
+        let aux: Vec<RayAux> = backgrounds.iter().map(|&background| RayAux { background, ..Default::default() }).collect();
+        let want: Vec<[f32; 3]> = vec![
+            [0.25 * 0.2 + 0.75 * 0.0, 0.25 * 0.2 + 0.75 * 0.5, 0.25 * 0.2 + 0.75 * 1.0],
+            [0.3, 0.4, 0.5],
+            [0.9, 0.9, 0.9],
+            [0.6, 0.3, 0.0],
+        ];
+        let rays: Vec<RayOutput> = (0..4).map(|i| RayOutput { rgb: [0.1 * i as f32, 0.5, 0.25], ..Default::default() }).collect();
+        let loss = Photometric::new(&gpu, 4).unwrap();
+        let rays_buf = GpuBuffer::from_slice(&gpu, "rays", &rays).unwrap();
+        let targets_buf = GpuBuffer::from_slice(&gpu, "targets", &targets).unwrap();
+        let aux_buf = GpuBuffer::from_slice(&gpu, "aux", &aux).unwrap();
+        let alpha_buf = GpuBuffer::from_slice(&gpu, "alpha", &alpha).unwrap();
+        let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", 4).unwrap();
+        let rc = Recomposite { aux: &aux_buf, alpha: &alpha_buf, loaded_over };
+        let mut enc = gpu.encoder();
+        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&rc), &d, 4, 4.0, 1.0);
+        enc.submit();
+        let grads = d.read(&gpu).unwrap();
+        let mut sq = 0.0f64;
+        for r in 0..4 {
+            for c in 0..3 {
+                let diff = rays[r].rgb[c] - want[r][c];
+                sq += (diff as f64).powi(2);
+                // dL/dc = 2 (c - c*) / (3 * 4): zero exactly where the render matches c*.
+                assert!((grads[r].rgb[c] - 2.0 * diff / 12.0).abs() < 1e-6, "ray {r} channel {c}: {} vs {}", grads[r].rgb[c], 2.0 * diff / 12.0);
+            }
+        }
+        let mse = loss.mse(&gpu, 4, 4.0).unwrap();
+        assert!((mse as f64 - sq / 12.0).abs() < 1e-6, "{mse} vs {}", sq / 12.0);
+        // Without recompositing the same call scores the targets as given.
+        let mut enc = gpu.encoder();
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, 4, 4.0, 1.0);
+        enc.submit();
+        assert!((d.read(&gpu).unwrap()[0].rgb[0] - 2.0 * (rays[0].rgb[0] - 0.8) / 12.0).abs() < 1e-6);
     }
 }

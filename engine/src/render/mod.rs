@@ -40,8 +40,8 @@
 //! **Background.** [`Background::Black`] (no background), a constant colour, or a
 //! random colour per ray (uniform in `[0, 1)^3`, a hash of a per-launch seed and the
 //! ray index, see [`random_background`]). The forward pass writes the colour it used
-//! to [`RayAux::background`], which the backward pass reads (and which the photometric
-//! loss should use to composite targets with alpha onto the same background).
+//! to [`RayAux::background`], which the backward pass reads and the photometric loss
+//! composites targets with alpha onto (`loss::photometric`).
 //!
 //! # Backward
 //! Given `g = dL/d RayOutput` per ray (same struct: `d rgb, d opacity, d normal,
@@ -88,6 +88,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, Kernel, KernelSpec};
 use crate::rng::{pcg_hash, unit_f32};
+pub use crate::samples::RayAux;
 use crate::samples::{FieldGrads, FieldOutputs, RayOutput, SampleBatch};
 
 /// Bind layout of `composite.wgsl::forward`: params, ranges, samples, rgb + density,
@@ -167,21 +168,6 @@ impl Default for RenderConfig {
     fn default() -> Self {
         Self { background: Background::Black, transmittance_threshold: 1e-4 }
     }
-}
-
-/// Per-ray side output of the forward pass (mirror of `RayAux` in `composite.wgsl`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
-pub struct RayAux {
-    /// The background colour composited behind this ray.
-    pub background: [f32; 3],
-    /// `K`: the number of leading samples that contributed (before early termination).
-    pub n_contrib: u32,
-    /// The ray's distortion `D` and occlusion `O` ([`priors`], unweighted; `O` over
-    /// the renderer's occlusion range, 0 when none is set).
-    pub distortion: f32,
-    pub occlusion: f32,
-    pub _pad: [u32; 2],
 }
 
 /// Uniform of both entry points (mirror of `Params` in `composite.wgsl`).

@@ -13,11 +13,11 @@
 //! A batch runs in two calls, so that the caller can check the losses in between:
 //! ```text
 //! Pipeline::forward:
-//!   host: targets re-composited over random backgrounds; random-pose rays appended;
-//!     RegNeRF's annealing of every ray's range; rays, targets and edge weights to the GPU
+//!   host: random-pose rays appended; RegNeRF's annealing of every ray's range; rays,
+//!     targets (and their alpha with random backgrounds) and edge weights to the GPU
 //!   sampler (Model::sample) -> field forward (+ analytic normals when L_n is on)
 //!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
-//!     (writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
+//!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
 //!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!   readbacks: rays dropped, the losses -> BatchLosses
 //! Pipeline::backward: the field's gradients zeroed, then the field backward
@@ -34,8 +34,9 @@
 
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer};
+use crate::loss::photometric::Recomposite;
 use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
-use crate::render::{Background, RenderConfig, RayPriors, Renderer, random_background};
+use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::DropTruncated;
 use crate::samples::{FieldGrads, GpuRay, GpuSample, RayOutput};
 
@@ -127,8 +128,10 @@ pub struct Pipeline {
     n_tv: u32,
     /// Whether the priors are on (their per-ray terms are read back).
     priors_on: bool,
-    /// Re-composite targets with alpha over random backgrounds (the renderer's too).
-    random_background: bool,
+    /// With random backgrounds: each target's alpha (1: none), which the photometric
+    /// loss composites onto the renderer's background, and the colour the images were
+    /// composited over when loaded.
+    random_background: Option<(GpuBuffer<f32>, [f32; 3])>,
     /// The model's renderer settings with the priors, and the random backgrounds.
     renderer: Renderer,
     bufs: BatchBuffers,
@@ -156,6 +159,9 @@ impl Pipeline {
         if random_background {
             render_config.background = Background::Random;
         }
+        let random_background = random_background
+            .then(|| GpuBuffer::zeros(gpu, "target alpha", n_all as usize).map(|a| (a, scene.background.unwrap_or([1.0; 3]))))
+            .transpose()?;
         let mut renderer = Renderer::new(gpu, render_config)?;
         // The priors apply to every rendered ray of a batch, random-pose rays included.
         renderer.set_priors(config.priors.weights(n_all, scene.near, scene.far));
@@ -261,17 +267,17 @@ impl Pipeline {
         Ok(Some(grown))
     }
 
-    /// The host side of a batch: targets re-composited over the step's random
-    /// backgrounds, the random-pose rays appended (zero photometric weight), every
-    /// range annealed (RegNeRF), then rays, targets and the edge and depth-TV weights
-    /// uploaded.
-    fn upload(&mut self, gpu: &Gpu, scene: &Scene, config: &RunConfig, mut batch: PixelBatch, plan: &StepPlan) {
+    /// The host side of a batch: the random-pose rays appended (zero photometric
+    /// weight), every range annealed (RegNeRF), then rays, targets (and their alpha,
+    /// with random backgrounds) and the edge and depth-TV weights uploaded.
+    fn upload(&mut self, gpu: &Gpu, scene: &Scene, config: &RunConfig, batch: PixelBatch, plan: &StepPlan) {
         if plan.reg.is_some() {
             self.edge_reg.pixel.write(gpu, &batch.reg);
         }
-        if self.random_background {
-            let loaded_over = scene.background.unwrap_or([1.0; 3]);
-            batch.recomposite(loaded_over, |ray| random_background(plan.step as u32, ray));
+        if let Some((alpha, _)) = &self.random_background {
+            let mut a: Vec<f32> = batch.alpha.iter().map(|a| a.unwrap_or(1.0)).collect();
+            a.resize(alpha.len(), 1.0);
+            alpha.write(gpu, &a);
         }
         let (mut rays, mut targets): (Vec<GpuRay>, Vec<[f32; 4]>) = (batch.rays, batch.targets);
         if self.n_tv > 0 {
@@ -299,7 +305,12 @@ impl Pipeline {
         }
         self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
         let rays_out = &bufs.render_out.rays;
-        self.photometric.record(&mut enc, rays_out, &self.targets, &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
+        let recomposite = self.random_background.as_ref().map(|(alpha, loaded_over)| Recomposite {
+            aux: &bufs.render_out.aux,
+            alpha,
+            loaded_over: *loaded_over,
+        });
+        self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
         }

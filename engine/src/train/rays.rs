@@ -60,20 +60,6 @@ pub struct PixelBatch {
 }
 
 impl PixelBatch {
-    /// Re-composites the targets of pixels with alpha over `background(ray)` instead of
-    /// `loaded_over`, the colour the images were composited over when loaded:
-    /// `c' = c + (bg - loaded_over) (1 - alpha)`.
-    pub fn recomposite(&mut self, loaded_over: [f32; 3], background: impl Fn(u32) -> [f32; 3]) {
-        for (i, (t, a)) in self.targets.iter_mut().zip(&self.alpha).enumerate() {
-            if let Some(a) = a {
-                let bg = background(i as u32);
-                for c in 0..3 {
-                    t[c] += (bg[c] - loaded_over[c]) * (1.0 - a);
-                }
-            }
-        }
-    }
-
     /// Appends the ray of pixel `(x, y)` of `view`; returns the ray's `z_scale`.
     fn push(&mut self, scene: &Scene, view: usize, x: u32, y: u32) -> f32 {
         let ray = scene.ray(view, x, y);
@@ -158,25 +144,6 @@ mod tests {
         assert!(ray_aabb(Vec3::new(0.0, 3.0, -3.0), Vec3::Z, aabb).is_none());
         let (a, _) = ray_aabb(Vec3::ZERO, Vec3::X, aabb).unwrap();
         assert_eq!(a, 0.0, "origin inside: starts at 0");
-    }
-
-    #[test]
-    fn recompositing_swaps_the_background_behind_alpha() {
-        let mut b = PixelBatch {
-            reg: Vec::new(),
-            rays: vec![GpuRay::default(); 3],
-            // Composited over white: 0.25 * fg + 0.75 * 1 with fg = 0.2 -> 0.8.
-            targets: vec![[0.8, 0.8, 0.8, 1.0], [0.3, 0.4, 0.5, 1.0], [0.9, 0.9, 0.9, 1.0]],
-            alpha: vec![Some(0.25), None, Some(1.0)],
-            ..Default::default()
-        };
-        b.recomposite([1.0; 3], |_| [0.0, 0.5, 1.0]);
-        let want = [0.25 * 0.2 + 0.75 * 0.0, 0.25 * 0.2 + 0.75 * 0.5, 0.25 * 0.2 + 0.75 * 1.0];
-        for c in 0..3 {
-            assert!((b.targets[0][c] - want[c]).abs() < 1e-6);
-        }
-        assert_eq!(b.targets[1], [0.3, 0.4, 0.5, 1.0], "no alpha: untouched");
-        assert_eq!(b.targets[2], [0.9, 0.9, 0.9, 1.0], "opaque: untouched");
     }
 
     #[test]
