@@ -45,8 +45,9 @@
 //! n = -u / |u|   (0 if |u| <= eps)
 //! ```
 //! `J_beta = diag(beta) J` is the Jacobian with level `l`'s rows weighted by `beta_l`
-//! ([`GridConfig::normal_level_weights`]; every `beta_l = 1` by default, and then
-//! `u = grad_x sigma` exactly).
+//! ([`GridConfig::normal_level_weights`], or 1 up to the resolution
+//! [`GridConfig::normal_max_resolution`] and 0 above; every `beta_l = 1` by default,
+//! and then `u = grad_x sigma` exactly).
 //!
 //! ## Band-limited normals
 //! With `beta_l < 1` on the finest levels, `u` is the gradient of the density in which
@@ -174,6 +175,11 @@ pub struct GridConfig {
     /// otherwise one value `>= 0` per level, coarsest first, not all zero. Density and
     /// colour always use every level.
     pub normal_level_weights: Vec<f32>,
+    /// With `normal_level_weights` empty and this `> 0`: `beta_l = 1` for the levels
+    /// whose resolution `N_min b^l` is at most this, 0 for the finer ones (a
+    /// band-limited normal that keeps its meaning when `n_levels` changes). 0 (the
+    /// default) keeps every level.
+    pub normal_max_resolution: f32,
     /// Added to the density MLP's output before the activation, so the untrained
     /// field's density is about `act(density_bias)` everywhere (trunc_exp: 1 at 0, the
     /// Instant-NGP start). Negative values start from nearly empty space, which only
@@ -201,6 +207,7 @@ impl Default for GridConfig {
             seed: 0,
             normal_eps: 1e-10,
             normal_level_weights: Vec::new(),
+            normal_max_resolution: 0.0,
             density_bias: 0.0,
             backward_chunk: 1 << 16,
             table_lr_scale: 1.0,
@@ -253,20 +260,34 @@ impl GridConfig {
                 return err(format!("normal_level_weights = {nw:?} must be finite and >= 0, not all zero"));
             }
         }
+        let nr = self.normal_max_resolution;
+        if !(nr == 0.0 || (nr.is_finite() && nr >= self.base_resolution as f32)) {
+            return err(format!(
+                "normal_max_resolution = {nr} must be 0 (every level) or finite and >= base_resolution = {}",
+                self.base_resolution
+            ));
+        }
         if self.backward_chunk < 64 {
             return err(format!("backward_chunk = {} must be at least 64", self.backward_chunk));
         }
         Ok(())
     }
 
-    /// The weight `beta_l` of every level in the analytic normal (ones when
-    /// `normal_level_weights` is empty).
+    /// The weight `beta_l` of every level in the analytic normal:
+    /// `normal_level_weights` when set, else 1 up to `normal_max_resolution` (every
+    /// level when it is 0) and 0 above.
     pub fn normal_weights(&self) -> Vec<f32> {
-        if self.normal_level_weights.is_empty() {
-            vec![1.0; self.n_levels as usize]
-        } else {
-            self.normal_level_weights.clone()
+        if !self.normal_level_weights.is_empty() {
+            return self.normal_level_weights.clone();
         }
+        let b = self.per_level_scale();
+        let cap = self.normal_max_resolution as f64;
+        (0..self.n_levels)
+            .map(|l| {
+                let res = self.base_resolution as f64 * b.powi(l as i32);
+                if cap == 0.0 || res <= cap * (1.0 + 1e-6) { 1.0 } else { 0.0 }
+            })
+            .collect()
     }
 
     /// Per-level scale factor `b`.

@@ -478,6 +478,15 @@ fn field_grid_normal_level_weights_are_validated() {
     let cfg = small_config();
     assert_eq!(cfg.normal_weights(), vec![1.0; 5]);
     assert!(GridConfig { normal_level_weights: vec![1.0; 5], ..cfg.clone() }.validate().is_ok());
+    // Resolutions 4, 8.85, 19.6, 43.4, 96: a cap keeps the levels at or below it.
+    assert_eq!(GridConfig { normal_max_resolution: 20.0, ..cfg.clone() }.normal_weights(), vec![1., 1., 1., 0., 0.]);
+    assert_eq!(GridConfig { normal_max_resolution: 96.0, ..cfg.clone() }.normal_weights(), vec![1.0; 5]);
+    assert_eq!(GridConfig { normal_max_resolution: 4.0, ..cfg.clone() }.normal_weights(), vec![1., 0., 0., 0., 0.]);
+    let both = GridConfig { normal_max_resolution: 4.0, normal_level_weights: vec![0.5; 5], ..cfg.clone() };
+    assert_eq!(both.normal_weights(), vec![0.5; 5], "the explicit weights win");
+    for cap in [3.0, -1.0, f32::INFINITY, f32::NAN] {
+        assert!(GridConfig { normal_max_resolution: cap, ..cfg.clone() }.validate().is_err(), "{cap}");
+    }
     for bad in [vec![1.0; 4], vec![1.0, 1.0, 1.0, 1.0, -0.1], vec![0.0; 5], vec![1.0, 1.0, f32::NAN, 1.0, 1.0]] {
         assert!(GridConfig { normal_level_weights: bad.clone(), ..cfg.clone() }.validate().is_err(), "{bad:?}");
     }
