@@ -167,7 +167,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     var de: Vec64;
     mat_t_vec(P.w1, w4, P.in4, &d1, &de);
 
-    // Hash features: dL/dF[c] = w_c dL/de + g (grad w_c . dv) * scale / extent.
+    // Hash features: dL/dF[c] = w_c dL/de + g (grad w_c . dv) * beta_l * scale / extent.
     for (var l = 0u; l < P.n_levels; l++) {
         if (!level_active(l)) {
             continue;
@@ -180,7 +180,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         let comp = (l & 1u) * 2u;
         let dek = vec2<f32>(de[l >> 1u][comp], de[l >> 1u][comp + 1u]);
         let gk = vec2<f32>(g[l >> 1u][comp], g[l >> 1u][comp + 1u]);
-        let sdv = dv * scale * P.inv_extent;
+        let sdv = dv * scale * normal_weight(l) * P.inv_extent;
         for (var c = 0u; c < 8u; c++) {
             let bits = corner_bits(c);
             let cw = corner_weight(f, bits);

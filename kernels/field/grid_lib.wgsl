@@ -61,6 +61,8 @@ struct GridParams {
     // Backward scratch: vec4 offset of each of the 11 per-sample regions.
     scratch: array<vec4<u32>, 3>,
     levels: array<Level, MAX_LEVELS>,
+    // beta_l of the analytic normal (GridConfig::normal_level_weights), level 4i+j at [i][j].
+    normal_weights: array<vec4<f32>, 8>,
 }
 
 @group(0) @binding(0) var<storage, read> P_buffer: GridParams;
@@ -126,8 +128,14 @@ fn level_active(l: u32) -> bool {
     return l < P.active_levels;
 }
 
+// beta_l: the weight of level l in the analytic normal's gradient.
+fn normal_weight(l: u32) -> f32 {
+    return P.normal_weights[l >> 2u][l & 3u];
+}
+
 // Writes e (2 features per level, zero for inactive levels and the padding) and, when
-// `want_jac`, de/dx per encoding dimension (world units).
+// `want_jac`, the normal path's Jacobian beta_l de/dx per encoding dimension (world
+// units; beta_l = 1 for every level gives the exact density gradient).
 fn encode(p: vec3<f32>, want_jac: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {
     for (var k4 = 0u; k4 < P.in4; k4++) {
         (*e)[k4] = vec4<f32>(0.0);
@@ -160,7 +168,7 @@ fn encode(p: vec3<f32>, want_jac: bool, e: ptr<function, Vec64>, jac: ptr<functi
         (*e)[l >> 1u][comp] = val.x;
         (*e)[l >> 1u][comp + 1u] = val.y;
         if (want_jac) {
-            let sc = scale * P.inv_extent;
+            let sc = scale * normal_weight(l) * P.inv_extent;
             (*jac)[2u * l] = vec3<f32>(gx.x, gy.x, gz.x) * sc;
             (*jac)[2u * l + 1u] = vec3<f32>(gx.y, gy.y, gz.y) * sc;
         }

@@ -53,6 +53,11 @@ pub struct Args {
     /// Scene directory (default: the path recorded in the checkpoint's config).
     #[arg(long)]
     scene: Option<PathBuf>,
+    /// Override one setting of the checkpoint's config for this evaluation, e.g.
+    /// `--set field.normal_level_weights=[1,1,1,1,1,1,0,0]` (repeatable). Settings
+    /// that change the parameters' shapes are refused when the checkpoint loads.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
 }
 
 /// `--lpips` values.
@@ -244,7 +249,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         dir.join(if args.split == "test" { "eval".to_string() } else { format!("eval-{}", args.split) })
     });
     crate::output::ensure_dir(&out, "--out")?;
-    let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), gpu_opts)?;
+    let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), &args.overrides, gpu_opts)?;
     let views = crate::cmd::render::split_views(&run.scene, &args.split)?;
 
     let bar = ProgressBar::new(views.len() as u64);

@@ -32,11 +32,16 @@ pub struct Args {
     /// empty-space-skipping comparison (same samples where space is occupied).
     #[arg(long, value_parser = ["occupancy", "uniform"])]
     sampler: Option<String>,
+    /// Override one setting of the checkpoint's config for this render, e.g.
+    /// `--set field.normal_level_weights=[1,1,1,1,1,1,0,0]` (repeatable). Settings
+    /// that change the parameters' shapes are refused when the checkpoint loads.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     crate::output::ensure_dir(&args.out, "--out")?;
-    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), gpu_opts)?;
+    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts)?;
     if let Some(b) = &args.backend {
         let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;
         let got = run.model.config.backend;
@@ -73,12 +78,20 @@ pub struct LoadedRun {
 
 /// The run of a checkpoint (a file, or a run directory holding
 /// `checkpoint.safetensors`) on its scene (the path recorded in its config, or
-/// `scene`), on the GPU ([`Model::from_checkpoint`]). Shared by `render` and `eval`.
-pub fn load_run(checkpoint: &Path, scene: Option<&Path>, gpu_opts: &GpuOptions) -> anyhow::Result<LoadedRun> {
+/// `scene`), on the GPU ([`Model::from_checkpoint`]), with the `--set` `overrides`
+/// applied to its config. Shared by `render` and `eval`.
+pub fn load_run(checkpoint: &Path, scene: Option<&Path>, overrides: &[String], gpu_opts: &GpuOptions) -> anyhow::Result<LoadedRun> {
     let path = if checkpoint.is_dir() { checkpoint.join("checkpoint.safetensors") } else { checkpoint.to_path_buf() };
     let mut ckpt = Checkpoint::load(&path)?;
     if let Some(scene) = scene {
         ckpt.config.scene.path = scene.to_path_buf();
+    }
+    for o in overrides {
+        ckpt.config.set(o)?;
+    }
+    if !overrides.is_empty() {
+        ckpt.config.resolve();
+        ckpt.config.validate().map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
     let scene_path = ckpt.config.scene.path.clone();
     let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options())

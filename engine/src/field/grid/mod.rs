@@ -41,8 +41,21 @@
 //! # Analytic normals (no finite differences)
 //! ```text
 //! m = relu'(z1) in {0,1}^W (relu'(0) = 0)      g = dh0/de = W1^T (m * W2[0,:])
-//! v = J^T g       u = grad_x sigma = act'(h0) v       n = -u / |u|   (0 if |u| <= eps)
+//! v = J_beta^T g = sum_l beta_l J_l^T g_l      u = act'(h0) v
+//! n = -u / |u|   (0 if |u| <= eps)
 //! ```
+//! `J_beta = diag(beta) J` is the Jacobian with level `l`'s rows weighted by `beta_l`
+//! ([`GridConfig::normal_level_weights`], or 1 up to the resolution
+//! [`GridConfig::normal_max_resolution`] and 0 above; every `beta_l = 1` by default,
+//! and then `u = grad_x sigma` exactly).
+//!
+//! ## Band-limited normals
+//! With `beta_l < 1` on the finest levels, `u` is the gradient of the density in which
+//! level `l` is read at `x + beta_l dx` (`d/d dx` at `dx = 0`): the finest levels,
+//! whose cells are a few pixels wide and whose gradient is per-cell noise
+//! (Neuralangelo's observation), stop steering the normal, while density and colour
+//! keep every level. The backward below holds with `J` read as `J_beta` throughout
+//! (the same code, `s_l` scaled by `beta_l` in the normal path's `dF` term).
 //!
 //! # Backward (per sample; c = dL/dn, everything else standard back-propagation)
 //! ```text
@@ -53,7 +66,7 @@
 //!          dv = act'(h0) du;  dh0 += act''(h0) <v, du>   (= 0 analytically: du is
 //!          orthogonal to u, the normal is scale invariant; computed anyway)
 //!          dL/dJ = g (x) dv  ->  J is linear in the features:
-//!              dF_l[i_B, f] += mu_l g_{l,f} <dw_B/df, dv * s_l / extent>
+//!              dF_l[i_B, f] += mu_l g_{l,f} <dw_B/df, dv * beta_l s_l / extent>
 //!          dg = J dv  ->  g = W1^T (m * W2[0,:]) with m piecewise constant:
 //!              dW1 += (m * W2[0,:]) (x) dg        dW2[0,j] += m_j (W1 dg)_j
 //! first order: d1 = W2^T dh * m;  dW2 += dh (x) a1;  dW1 += d1 (x) e;  de = W1^T d1
@@ -157,6 +170,16 @@ pub struct GridConfig {
     pub seed: u64,
     /// Normals are zero where `|grad_x sigma| <= normal_eps`.
     pub normal_eps: f32,
+    /// Per-level weights `beta_l` of the analytic normal's gradient (see "Band-limited
+    /// normals" in the module doc): empty for all ones (the exact density gradient),
+    /// otherwise one value `>= 0` per level, coarsest first, not all zero. Density and
+    /// colour always use every level.
+    pub normal_level_weights: Vec<f32>,
+    /// With `normal_level_weights` empty and this `> 0`: `beta_l = 1` for the levels
+    /// whose resolution `N_min b^l` is at most this, 0 for the finer ones (a
+    /// band-limited normal that keeps its meaning when `n_levels` changes). 0 (the
+    /// default) keeps every level.
+    pub normal_max_resolution: f32,
     /// Added to the density MLP's output before the activation, so the untrained
     /// field's density is about `act(density_bias)` everywhere (trunc_exp: 1 at 0, the
     /// Instant-NGP start). Negative values start from nearly empty space, which only
@@ -183,6 +206,8 @@ impl Default for GridConfig {
             table_init_range: 1e-4,
             seed: 0,
             normal_eps: 1e-10,
+            normal_level_weights: Vec::new(),
+            normal_max_resolution: 0.0,
             density_bias: 0.0,
             backward_chunk: 1 << 16,
             table_lr_scale: 1.0,
@@ -222,10 +247,47 @@ impl GridConfig {
         if !(self.normal_eps >= 0.0 && self.table_init_range >= 0.0) {
             return err("normal_eps and table_init_range must be >= 0".into());
         }
+        let nw = &self.normal_level_weights;
+        if !nw.is_empty() {
+            if nw.len() != self.n_levels as usize {
+                return err(format!(
+                    "normal_level_weights has {} values, expected none or one per level (n_levels = {})",
+                    nw.len(),
+                    self.n_levels
+                ));
+            }
+            if !nw.iter().all(|w| w.is_finite() && *w >= 0.0) || nw.iter().all(|w| *w == 0.0) {
+                return err(format!("normal_level_weights = {nw:?} must be finite and >= 0, not all zero"));
+            }
+        }
+        let nr = self.normal_max_resolution;
+        if !(nr == 0.0 || (nr.is_finite() && nr >= self.base_resolution as f32)) {
+            return err(format!(
+                "normal_max_resolution = {nr} must be 0 (every level) or finite and >= base_resolution = {}",
+                self.base_resolution
+            ));
+        }
         if self.backward_chunk < 64 {
             return err(format!("backward_chunk = {} must be at least 64", self.backward_chunk));
         }
         Ok(())
+    }
+
+    /// The weight `beta_l` of every level in the analytic normal:
+    /// `normal_level_weights` when set, else 1 up to `normal_max_resolution` (every
+    /// level when it is 0) and 0 above.
+    pub fn normal_weights(&self) -> Vec<f32> {
+        if !self.normal_level_weights.is_empty() {
+            return self.normal_level_weights.clone();
+        }
+        let b = self.per_level_scale();
+        let cap = self.normal_max_resolution as f64;
+        (0..self.n_levels)
+            .map(|l| {
+                let res = self.base_resolution as f64 * b.powi(l as i32);
+                if cap == 0.0 || res <= cap * (1.0 + 1e-6) { 1.0 } else { 0.0 }
+            })
+            .collect()
     }
 
     /// Per-level scale factor `b`.
@@ -361,6 +423,8 @@ struct GridParams {
     _pad: [u32; 2],
     scratch: [[u32; 4]; 3],
     levels: [GpuLevel; MAX_LEVELS as usize],
+    /// `beta_l` of level `4 i + j` at `[i][j]`.
+    normal_weights: [[f32; 4]; MAX_LEVELS as usize / 4],
 }
 
 /// Mirror of `OuterParams` in `grid_outer.wgsl`.
@@ -564,6 +628,7 @@ impl GridField {
             aabb: [self.aabb[0].to_array().map(f64::from), self.aabb[1].to_array().map(f64::from)],
             active_levels: self.active_levels,
             normal_eps: self.config.normal_eps as f64,
+            normal_weights: self.config.normal_weights().into_iter().map(f64::from).collect(),
             density_bias: self.config.density_bias as f64,
             table: self.table.read(gpu)?.into_iter().map(f64::from).collect(),
             mlp: self.mlp.read(gpu)?.into_iter().map(f64::from).collect(),
@@ -575,6 +640,10 @@ impl GridField {
         let mut levels = [GpuLevel::zeroed(); MAX_LEVELS as usize];
         for (g, l) in levels.iter_mut().zip(&self.layout.levels) {
             *g = GpuLevel { offset: l.offset, size: l.size, res: l.dense_res, scale: l.scale };
+        }
+        let mut normal_weights = [[0.0f32; 4]; MAX_LEVELS as usize / 4];
+        for (l, w) in self.config.normal_weights().into_iter().enumerate() {
+            normal_weights[l / 4][l % 4] = w;
         }
         let mut scratch = [[0u32; 4]; 3];
         if let Some(s) = &self.scratch {
@@ -608,6 +677,7 @@ impl GridField {
             _pad: [0; 2],
             scratch,
             levels,
+            normal_weights,
         }
     }
 

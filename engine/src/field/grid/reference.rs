@@ -18,6 +18,8 @@ pub struct GridModel {
     pub aabb: [[f64; 3]; 2],
     pub active_levels: u32,
     pub normal_eps: f64,
+    /// `beta_l` of every level in the analytic normal (one per level).
+    pub normal_weights: Vec<f64>,
     /// Added to the density MLP's output before the activation.
     pub density_bias: f64,
     /// 2 features per entry, entry-major.
@@ -42,7 +44,8 @@ pub struct Encoding {
     pub inside: bool,
     /// `in_pad` features (zero for inactive levels and padding).
     pub e: Vec<f64>,
-    /// `de_k/dx` (world units), `in_dim` rows.
+    /// `beta_l de_k/dx` (world units, `l = k / 2`), `in_dim` rows: the Jacobian of the
+    /// normal path (the exact `de/dx` when every `beta_l` is 1).
     pub jac: Vec<[f64; 3]>,
     /// Per active level: its 8 corners (empty for inactive levels).
     pub corners: Vec<Vec<Corner>>,
@@ -63,7 +66,8 @@ pub struct Trace {
     pub rgb: [f64; 3],
     /// `g = dh0/de` (`in_pad`).
     pub g: Vec<f64>,
-    /// `v = J^T g` and `u = grad_x sigma = act'(h0) v` (zero outside the box).
+    /// `v = J^T g` and `u = act'(h0) v` (zero outside the box), with the normal path's
+    /// level-weighted `J`: `u = grad_x sigma` when every `beta_l` is 1.
     pub v: [f64; 3],
     pub u: [f64; 3],
     pub normal: [f64; 3],
@@ -174,6 +178,12 @@ impl GridModel {
     }
 
     pub fn encode(&self, x: [f64; 3]) -> Encoding {
+        self.encode_per_level(x, |_| x)
+    }
+
+    /// [`GridModel::encode`] with level `l` read at `at(l)` instead of `x` (`p`, the
+    /// inside flag and the Jacobian's meaning stay those of `x`).
+    fn encode_per_level(&self, x: [f64; 3], at: impl Fn(usize) -> [f64; 3]) -> Encoding {
         let (p, inside) = self.to_unit(x);
         let lay = &self.layout;
         let mut e = vec![0.0; lay.in_pad];
@@ -185,7 +195,7 @@ impl GridModel {
                 continue;
             }
             let s = lv.scale as f64;
-            let pos = p.map(|v| v * s + 0.5);
+            let pos = self.to_unit(at(l)).0.map(|v| v * s + 0.5);
             let fl = pos.map(f64::floor);
             let f = [pos[0] - fl[0], pos[1] - fl[1], pos[2] - fl[2]];
             let c0 = fl.map(|v| v as u32);
@@ -201,7 +211,8 @@ impl GridModel {
                     let feat = self.table[2 * entry + k];
                     e[2 * l + k] += w * feat;
                     for d in 0..3 {
-                        jac[2 * l + k][d] += dw[d] * feat * s / (self.aabb[1][d] - self.aabb[0][d]);
+                        jac[2 * l + k][d] +=
+                            dw[d] * feat * self.normal_weights[l] * s / (self.aabb[1][d] - self.aabb[0][d]);
                     }
                 }
                 cs.push(Corner { entry, w, dw });
@@ -241,6 +252,19 @@ impl GridModel {
     /// Post-activation density at `x`.
     pub fn density(&self, x: [f64; 3]) -> f64 {
         let enc = self.encode(x);
+        if !enc.inside {
+            return 0.0;
+        }
+        let (_, h) = self.density_mlp(&enc.e);
+        self.act(h[0])
+    }
+
+    /// Density at `x` with level `l` of the encoding read at `x + beta_l dx`: its
+    /// gradient in `dx` at `dx = 0` is the normal path's `u = act'(h0) sum_l beta_l
+    /// J_l^T g_l` (the density gradient when every `beta_l` is 1), which the tests
+    /// check with central differences.
+    pub fn density_level_shifted(&self, x: [f64; 3], dx: [f64; 3]) -> f64 {
+        let enc = self.encode_per_level(x, |l| std::array::from_fn(|d| x[d] + self.normal_weights[l] * dx[d]));
         if !enc.inside {
             return 0.0;
         }
@@ -345,7 +369,8 @@ impl GridModel {
         // Hash features.
         for (l, cs) in t.enc.corners.iter().enumerate() {
             let s = lay.levels[l].scale as f64;
-            let sdv: [f64; 3] = std::array::from_fn(|d| dv[d] * s / (self.aabb[1][d] - self.aabb[0][d]));
+            let sdv: [f64; 3] =
+                std::array::from_fn(|d| dv[d] * self.normal_weights[l] * s / (self.aabb[1][d] - self.aabb[0][d]));
             for c in cs {
                 for k in 0..2 {
                     grads.table[2 * c.entry + k] += c.w * de[2 * l + k] + t.g[2 * l + k] * dot3(c.dw, sdv);

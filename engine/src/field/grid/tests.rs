@@ -350,8 +350,8 @@ fn field_grid_normals_match_finite_differences_and_gpu() {
 /// L = sum_i a_i sigma_i + <b_i, rgb_i> + <c_i, n_i>: GPU backward (second order
 /// through the normals) vs the reference backward for every parameter, and the
 /// reference vs central differences of the reference forward on a random subset.
-fn end_to_end(disable_float_atomics: bool, n: usize, fd_checks: usize) {
-    let mut s = setup(&small_config(), n, 128, 41, disable_float_atomics);
+fn end_to_end(cfg: &GridConfig, disable_float_atomics: bool, n: usize, fd_checks: usize) {
+    let mut s = setup(cfg, n, 128, 41, disable_float_atomics);
     let m = s.field.reference(&s.gpu).unwrap();
     let w = LossWeights::random(n, 42, 1.0, 1.0, 1.0);
     s.field.zero_grads(&s.gpu);
@@ -408,12 +408,88 @@ fn end_to_end(disable_float_atomics: bool, n: usize, fd_checks: usize) {
 
 #[test]
 fn field_grid_end_to_end_gradients_with_normals() {
-    end_to_end(false, 64, 24);
+    end_to_end(&small_config(), false, 64, 24);
 }
 
 #[test]
 fn field_grid_end_to_end_gradients_compare_exchange_atomics() {
-    end_to_end(true, 48, 4);
+    end_to_end(&small_config(), true, 48, 4);
+}
+
+/// Level weights of the band-limited normal covering 1, a fraction, 0 and a weight
+/// above 1, on dense and hashed levels.
+fn band_limited_config() -> GridConfig {
+    GridConfig { normal_level_weights: vec![1.0, 1.3, 0.6, 0.2, 0.0], ..small_config() }
+}
+
+#[test]
+fn field_grid_end_to_end_gradients_with_band_limited_normals() {
+    end_to_end(&band_limited_config(), false, 64, 24);
+}
+
+/// Band-limited normals: the GPU equals the reference; the reference's `u` equals
+/// central differences of the level-shifted density (each level read at
+/// `x + beta_l dx`); density and colour are those of the unweighted field, the normals
+/// are not.
+#[test]
+fn field_grid_band_limited_normals_match_finite_differences_and_gpu() {
+    let n = 96;
+    let cfg = band_limited_config();
+    let mut s = setup(&cfg, n, 128, 33, false);
+    let m = s.field.reference(&s.gpu).unwrap();
+    assert_eq!(m.normal_weights, vec![1.0, 1.3f32 as f64, 0.6f32 as f64, 0.2f32 as f64, 0.0]);
+    let exact = GridModel { normal_weights: vec![1.0; 5], ..m.clone() };
+    let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+    s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+    let normals = out.normal.read(&s.gpu).unwrap();
+    let rgbd = out.rgb_density.read(&s.gpu).unwrap();
+    let eps = 1e-7;
+    let (mut checked, mut differ) = (0, 0);
+    for (i, smp) in s.samples.iter().enumerate() {
+        let x = pos(smp);
+        let t = m.forward(x, dir(smp));
+        let te = exact.forward(x, dir(smp));
+        assert_close(&format!("normal[{i}]"), &to_f64(&normals[i][..3]), &t.normal, 1e-4, 1e-4);
+        assert_eq!((t.sigma, t.rgb), (te.sigma, te.rgb), "density and colour keep every level");
+        assert_close(&format!("rgb sigma[{i}]"), &to_f64(&rgbd[i]), &[te.rgb[0], te.rgb[1], te.rgb[2], te.sigma], 1e-4, 1e-4);
+        if !t.enc.inside {
+            assert_eq!(t.normal, [0.0; 3]);
+            continue;
+        }
+        let grad: [f64; 3] = std::array::from_fn(|d| {
+            let (mut dp, mut dm) = ([0.0; 3], [0.0; 3]);
+            dp[d] = eps;
+            dm[d] = -eps;
+            (m.density_level_shifted(x, dp) - m.density_level_shifted(x, dm)) / (2.0 * eps)
+        });
+        for d in 0..3 {
+            assert!((grad[d] - t.u[d]).abs() <= 1e-5 * (1.0 + t.u[d].abs()), "u[{i}]: fd {grad:?} analytic {:?}", t.u);
+        }
+        let angle = (0..3).map(|d| t.normal[d] * te.normal[d]).sum::<f64>().clamp(-1.0, 1.0).acos();
+        differ += (angle > 1e-3) as usize;
+        checked += 1;
+    }
+    assert!(checked > n / 2);
+    assert!(differ > checked / 2, "the weights change most normals ({differ} of {checked})");
+}
+
+#[test]
+fn field_grid_normal_level_weights_are_validated() {
+    let cfg = small_config();
+    assert_eq!(cfg.normal_weights(), vec![1.0; 5]);
+    assert!(GridConfig { normal_level_weights: vec![1.0; 5], ..cfg.clone() }.validate().is_ok());
+    // Resolutions 4, 8.85, 19.6, 43.4, 96: a cap keeps the levels at or below it.
+    assert_eq!(GridConfig { normal_max_resolution: 20.0, ..cfg.clone() }.normal_weights(), vec![1., 1., 1., 0., 0.]);
+    assert_eq!(GridConfig { normal_max_resolution: 96.0, ..cfg.clone() }.normal_weights(), vec![1.0; 5]);
+    assert_eq!(GridConfig { normal_max_resolution: 4.0, ..cfg.clone() }.normal_weights(), vec![1., 0., 0., 0., 0.]);
+    let both = GridConfig { normal_max_resolution: 4.0, normal_level_weights: vec![0.5; 5], ..cfg.clone() };
+    assert_eq!(both.normal_weights(), vec![0.5; 5], "the explicit weights win");
+    for cap in [3.0, -1.0, f32::INFINITY, f32::NAN] {
+        assert!(GridConfig { normal_max_resolution: cap, ..cfg.clone() }.validate().is_err(), "{cap}");
+    }
+    for bad in [vec![1.0; 4], vec![1.0, 1.0, 1.0, 1.0, -0.1], vec![0.0; 5], vec![1.0, 1.0, f32::NAN, 1.0, 1.0]] {
+        assert!(GridConfig { normal_level_weights: bad.clone(), ..cfg.clone() }.validate().is_err(), "{bad:?}");
+    }
 }
 
 // ---------------------------------------------------------------- options
