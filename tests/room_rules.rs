@@ -26,17 +26,17 @@ const RULES: &[(&str, &[&str], &[&str])] = &[
     ("rng", &[], &[]),
     ("data", &[], &[]),
     ("edges", &["data"], &[]),
-    ("samples", &["gpu"], &[]),
+    ("layout", &["gpu"], &[]),
     ("optim", &["gpu"], &["rng"]),
     ("viz", &["data"], &[]),
-    ("field", &["gpu", "rng", "samples", "optim"], &[]),
-    ("sampler", &["gpu", "samples"], &["rng"]),
-    ("render", &["gpu", "rng", "samples"], &[]),
-    ("loss", &["gpu", "samples"], &["rng", "field", "render"]),
+    ("field", &["gpu", "rng", "layout", "optim"], &[]),
+    ("sampler", &["gpu", "layout"], &["rng"]),
+    ("render", &["gpu", "rng", "layout"], &[]),
+    ("loss", &["gpu", "layout"], &["rng", "field", "render"]),
     ("metrics", &["data", "edges", "viz"], &[]),
     (
         "train",
-        &["gpu", "rng", "data", "edges", "samples", "optim", "viz", "field", "sampler", "render", "loss", "metrics"],
+        &["gpu", "rng", "data", "edges", "layout", "optim", "viz", "field", "sampler", "render", "loss", "metrics"],
         &[],
     ),
 ];
@@ -504,7 +504,7 @@ use crate::{gpu::Gpu, data::{Scene, Ray}};
 const S: &str = "crate::train";
 const R: &str = r#"crate::train"#;
 const C: char = '"';
-fn f<'a>(x: &'a str) -> crate::samples::GpuRay { todo!() }
+fn f<'a>(x: &'a str) -> crate::layout::GpuRay { todo!() }
 #[cfg(test)]
 mod tests {
     use crate::render::Renderer;
@@ -524,12 +524,12 @@ mod more;
         }
     }
     let names: Vec<(&str, usize)> = found.iter().map(|(r, l)| (r.as_str(), *l)).collect();
-    assert_eq!(names, [("gpu", 3), ("data", 3), ("samples", 8), ("render", 11)]);
+    assert_eq!(names, [("gpu", 3), ("data", 3), ("layout", 8), ("render", 11)]);
     let (ranges, mods) = test_items(&code);
     assert_eq!(mods, ["more"]);
     let render_at = flat.find("crate::render").unwrap();
     assert!(ranges.iter().any(|&(a, b)| a <= render_at && render_at < b));
-    assert!(!ranges.iter().any(|&(a, b)| a <= flat.find("crate::samples").unwrap() && flat.find("crate::samples").unwrap() < b));
+    assert!(!ranges.iter().any(|&(a, b)| a <= flat.find("crate::layout").unwrap() && flat.find("crate::layout").unwrap() < b));
 }
 
 /// Prints the current room graph (`-- --ignored --nocapture print_room_graph`): each

@@ -10,7 +10,7 @@
 //!   hash and its host mirror);
 //! * [`data`]: scenes, cameras and rays, dataset formats (Blender, LLFF, DTU) and splits;
 //! * [`edges`]: edge masks of the training images (Canny, external maps, dilation);
-//! * [`samples`]: the ray, sample and per-ray output layouts shared by the GPU rooms;
+//! * [`layout`]: the ray, sample and per-ray output layouts shared by the GPU rooms;
 //! * [`field`]: the `Field` trait and its hash-grid and MLP backends, with analytic
 //!   normals and the exact backward pass;
 //! * [`sampler`]: the occupancy grid, its BVH and sample placement along rays;
@@ -31,7 +31,7 @@ pub mod metrics;
 pub mod optim;
 pub mod render;
 pub mod rng;
-pub mod samples;
+pub mod layout;
 pub mod train;
 pub mod viz;
 pub mod sampler;

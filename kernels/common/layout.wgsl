@@ -1,5 +1,5 @@
 // Buffer layouts shared by sampler, field and renderer kernels. Mirror of
-// engine/src/samples.rs (see its module doc for the invariants); keep the two equal.
+// engine/src/layout.rs (see its module doc for the invariants); keep the two equal.
 
 struct Ray {
     origin: vec3<f32>,

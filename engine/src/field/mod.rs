@@ -34,7 +34,7 @@ pub use mlp::{Footprint, MlpConfig, MlpField, PositionEncoding};
 
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 pub use crate::optim::ParamGroup;
-use crate::samples::{FieldGrads, FieldOutputs, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
 
 /// A named host-side parameter array (row-major `shape`), for checkpoints.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -8,7 +8,7 @@ use glam::Vec3;
 use super::Field;
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::rng::SplitMix64;
-use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
+use crate::layout::{FieldOutputs, GpuSample, SampleBatch};
 
 pub(crate) fn rng(seed: u64) -> SplitMix64 {
     SplitMix64::new(seed)

@@ -36,7 +36,7 @@
 //! patch rays are a contiguous range `offset .. offset + P ps^2` of the batch.
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::{GpuRay, RayOutput};
+use crate::layout::{GpuRay, RayOutput};
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/depth_tv.wgsl",

@@ -67,7 +67,7 @@
 //! it reads the forward outputs of the same batch; `n_rays = 4 * n_patches`.
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::RayOutput;
+use crate::layout::RayOutput;
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/edge_reg.wgsl",

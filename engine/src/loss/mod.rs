@@ -1,5 +1,5 @@
 //! The loss room: per-ray losses and their gradients with respect to the rendered
-//! [`RayOutput`](crate::samples::RayOutput)s.
+//! [`RayOutput`](crate::layout::RayOutput)s.
 //!
 //! Owns the photometric loss ([`photometric`]) and the edge-guided depth/normal
 //! regularizers of EdgeNeRF ([`edge_reg`]) and RegNeRF's depth total variation on patches

@@ -13,7 +13,7 @@
 //! Owner of `kernels/loss/photometric.wgsl`.
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::{RayAux, RayOutput};
+use crate::layout::{RayAux, RayOutput};
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/photometric.wgsl",

@@ -67,7 +67,7 @@
 //! regularization) in the same pass.
 //!
 //! # Invariants
-//! * The ranges obey [`crate::samples`]'s invariants and lie inside the field buffers;
+//! * The ranges obey [`crate::layout`]'s invariants and lie inside the field buffers;
 //!   samples outside every range (gaps, past `count[0]`) are neither read nor written.
 //! * The forward outputs and [`RayAux`] passed to [`Renderer::backward`] come from a
 //!   [`Renderer::forward`] over the same batch and field values.
@@ -88,8 +88,8 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, Kernel, KernelSpec};
 use crate::rng::{pcg_hash, unit_f32};
-pub use crate::samples::RayAux;
-use crate::samples::{FieldGrads, FieldOutputs, RayOutput, SampleBatch};
+pub use crate::layout::RayAux;
+use crate::layout::{FieldGrads, FieldOutputs, RayOutput, SampleBatch};
 
 /// Bind layout of `composite.wgsl::forward`: params, ranges, samples, rgb + density,
 /// normal, ray outputs, ray aux, per-sample weights.

@@ -10,7 +10,7 @@
 //! function is all a finite-difference test needs; [`forward_batch`] gathers rays
 //! from the flat GPU-layout arrays exactly as the kernel indexes them.
 
-use crate::samples::{GpuSample, RayOutput, SampleRange};
+use crate::layout::{GpuSample, RayOutput, SampleRange};
 
 /// One sample's inputs to compositing.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

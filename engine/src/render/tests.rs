@@ -18,7 +18,7 @@ use super::reference::{self, RefRay, RefSample};
 use super::*;
 use crate::gpu::test_gpu;
 use crate::rng::SplitMix64;
-use crate::samples::{GpuSample, SampleRange};
+use crate::layout::{GpuSample, SampleRange};
 
 /// A batch on the host, in the kernels' layout.
 #[derive(Clone)]

@@ -16,7 +16,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, KernelSpec};
-use crate::samples::GpuRay;
+use crate::layout::GpuRay;
 
 use super::{OccupancyGrid, SamplerError};
 

@@ -17,7 +17,7 @@
 //! is kept when its midpoint is inside an occupied interval and its cell's bit is set,
 //! and an empty cell is crossed in one jump. Both modes use the same segment grid.
 //!
-//! Invariants of the output (those of [`crate::samples`]): samples of a ray are
+//! Invariants of the output (those of [`crate::layout`]): samples of a ray are
 //! contiguous at `ranges[r].start`, in increasing `t`, non-overlapping, inside
 //! `[t_min, t_max]`; rays are packed in ray order with no gaps; `count[0] <=
 //! capacity` samples are written and `count[1]` were wanted (after the per-ray cap,
@@ -28,7 +28,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
-use crate::samples::{GpuRay, SampleBatch};
+use crate::layout::{GpuRay, SampleBatch};
 
 use super::occupancy::OccupancyGeom;
 use super::intervals::RayIntervals;
@@ -205,7 +205,7 @@ mod tests {
 
     use crate::rng::{rand_u32, unit_f32};
     use super::*;
-    use crate::samples::{GpuSample, SampleRange};
+    use crate::layout::{GpuSample, SampleRange};
 
     pub(super) struct Out {
         pub(super) ranges: Vec<SampleRange>,
@@ -242,7 +242,7 @@ mod tests {
         }
     }
 
-    /// The invariants of `crate::samples`, plus packing in ray order from 0.
+    /// The invariants of `crate::layout`, plus packing in ray order from 0.
     pub(super) fn check_invariants(out: &Out, rays: &[GpuRay], capacity: u32) {
         assert!(out.count[0] <= capacity && out.count[0] == out.count[1].min(capacity));
         let mut next = 0u32;
@@ -379,7 +379,7 @@ mod occupancy_tests {
     use super::super::intervals::tests::{random_grid, random_rays};
     use super::tests::{check_invariants, run};
     use super::*;
-    use crate::samples::GpuSample;
+    use crate::layout::GpuSample;
 
     /// Cell of point `p` as `grid_cell_coord` computes it, or None outside the grid.
     fn cell_of(grid: &OccupancyGrid, p: Vec3) -> Option<[u32; 3]> {

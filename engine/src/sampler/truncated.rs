@@ -21,7 +21,7 @@
 //! [`Sampler::wanted_counts`]: super::Sampler::wanted_counts
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::SampleRange;
+use crate::layout::SampleRange;
 
 const SPEC: KernelSpec = KernelSpec {
     file: "sampler/truncated.wgsl",

@@ -72,7 +72,7 @@ use crate::metrics::image::psnr_from_mse;
 use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
 use crate::render::RenderError;
 use crate::sampler::SamplerError;
-use crate::samples as samples_gpu;
+use crate::layout as samples_gpu;
 
 pub use checkpoint::Checkpoint;
 pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};

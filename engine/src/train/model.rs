@@ -13,7 +13,7 @@ use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
 use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
-use crate::samples::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
+use crate::layout::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
 
 use super::TrainError;
 use super::checkpoint::Checkpoint;

@@ -38,7 +38,7 @@ use crate::loss::photometric::Recomposite;
 use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::DropTruncated;
-use crate::samples::{FieldGrads, GpuRay, GpuSample, RayOutput};
+use crate::layout::{FieldGrads, GpuRay, GpuSample, RayOutput};
 
 use super::TrainError;
 use super::config::{BatchKind, RunConfig};

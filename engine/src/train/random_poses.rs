@@ -36,7 +36,7 @@
 use glam::{Mat3, Mat4, Vec3};
 
 use crate::data::{Camera, Scene};
-use crate::samples::GpuRay;
+use crate::layout::GpuRay;
 
 use super::rays::to_gpu_ray;
 use crate::rng::SplitMix64;

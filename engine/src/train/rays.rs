@@ -15,7 +15,7 @@ use glam::Vec3;
 use crate::data::{Ray, Scene};
 use crate::edges::EdgeMask;
 use crate::rng::SplitMix64;
-use crate::samples::GpuRay;
+use crate::layout::GpuRay;
 
 /// `[t_enter, t_exit]` of a ray (`t >= 0`) against an AABB, if it hits: the kernels'
 /// slab test ([`GpuRay::box_range`]).

@@ -27,7 +27,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::data::Scene;
-use crate::samples::GpuRay;
+use crate::layout::GpuRay;
 
 use super::random_poses::PoseKind;
 

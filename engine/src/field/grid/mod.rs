@@ -120,7 +120,7 @@ use super::{Field, FieldError, NamedArray, ParamGroup};
 use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
-use crate::samples::{FieldGrads, FieldOutputs, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
 
 /// Outputs of the density MLP (the first is the pre-activation density).
 pub const DENSITY_OUT: u32 = 16;

@@ -13,7 +13,7 @@ use super::*;
 use crate::field::Field;
 use crate::field::test_support::*;
 use crate::gpu::{test_gpu, Gpu};
-use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
+use crate::layout::{FieldOutputs, GpuSample, SampleBatch};
 
 pub(crate) const AABB: [Vec3; 2] = [Vec3::new(-1.0, -0.5, -2.0), Vec3::new(1.5, 1.0, 0.5)];
 

@@ -83,7 +83,7 @@ use gemm::{Dense, Kernels, View};
 
 use super::{Field, FieldError, NamedArray, ParamGroup};
 use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::samples::{FieldGrads, FieldOutputs, GpuSample, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, GpuSample, SampleBatch};
 
 /// Name of the parameter group.
 pub const PARAMS_NAME: &str = "mlp.params";

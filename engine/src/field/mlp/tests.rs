@@ -13,7 +13,7 @@ use super::reference::MlpModel;
 use super::*;
 use crate::field::test_support::*;
 use crate::gpu::{Gpu, test_gpu};
-use crate::samples::{FieldOutputs, GpuSample, SampleBatch};
+use crate::layout::{FieldOutputs, GpuSample, SampleBatch};
 
 const AABB: [Vec3; 2] = [Vec3::new(-1.0, -0.5, -2.0), Vec3::new(1.5, 1.0, 0.5)];
 const FOOTPRINT: Footprint = Footprint { radius0: 0.02, radius1: 0.2, point_var: 0.004 };

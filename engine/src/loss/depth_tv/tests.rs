@@ -13,7 +13,7 @@ use crate::field::test_support::check_grid_grads_against_fd;
 use crate::field::{Field, GridField};
 use crate::gpu::test_gpu;
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer, reference as render_ref};
-use crate::samples::{FieldGrads, FieldOutputs, GpuSample, SampleBatch, SampleRange};
+use crate::layout::{FieldGrads, FieldOutputs, GpuSample, SampleBatch, SampleRange};
 
 /// Random patch rays; a few with the clamp active (low and high), one transparent.
 fn random_rays(n: usize, seed: u64) -> Vec<TvRay> {

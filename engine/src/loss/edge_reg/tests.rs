@@ -13,7 +13,7 @@ use crate::field::test_support::check_grid_grads_against_fd;
 use crate::field::{Field, GridField};
 use crate::gpu::test_gpu;
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer, reference as render_ref};
-use crate::samples::{FieldGrads, FieldOutputs, GpuSample, SampleBatch, SampleRange};
+use crate::layout::{FieldGrads, FieldOutputs, GpuSample, SampleBatch, SampleRange};
 
 fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
     let mut r = SplitMix64::new(seed);
