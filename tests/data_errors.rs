@@ -363,7 +363,7 @@ fn dtu_scan(root: &Path, n: usize) -> Vec<(String, Vec<f64>)> {
     for i in 0..n {
         write_png(&root.join(format!("image/{i:06}.png")), 8, 6);
     }
-    common::dtu_camera_matrices(n, 1.0)
+    common::dtu_camera_matrices(n, 8, 6, 1.0)
 }
 
 fn write_cameras(root: &Path, arrays: &[(String, Vec<f64>)]) {

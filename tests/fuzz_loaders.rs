@@ -535,7 +535,7 @@ fn fuzz_dtu() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("image")).unwrap();
     let n = 29; // the 3-view DTU split trains on views 25, 22 and 28
-    let mats = common::dtu_camera_matrices(n, 1.5);
+    let mats = common::dtu_camera_matrices(n, 8, 6, 1.5);
     for i in 0..n {
         std::fs::write(dir.path().join(format!("image/{i:06}.png")), rgb_png(8, 6)).unwrap();
     }

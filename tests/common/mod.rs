@@ -9,6 +9,8 @@
 
 use std::path::PathBuf;
 
+mod dtu_arc;
+
 /// The real-data root, or `None` (after a note on stderr) when it is not available.
 /// Panics instead when `EDGENERF_REQUIRE_DATA=1`.
 pub fn data_dir() -> Option<PathBuf> {
@@ -57,23 +59,5 @@ pub fn scene_dir(rel: &str) -> Option<PathBuf> {
     None
 }
 
-/// The `world_mat_i` / `scale_mat_i` pairs of a small DTU-layout scan of `n` views
-/// (row-major 4x4): cameras on an arc looking at the origin through 8x6-pixel
-/// intrinsics, every `scale_mat` a uniform `scale`.
-pub fn dtu_camera_matrices(n: usize, scale: f64) -> Vec<(String, Vec<f64>)> {
-    use glam::{DMat4, DVec3, DVec4};
-    let k = DMat4::from_cols(DVec4::new(10.0, 0.0, 0.0, 0.0), DVec4::new(0.0, 10.0, 0.0, 0.0), DVec4::new(4.0, 3.0, 1.0, 0.0), DVec4::W);
-    let rows = |m: DMat4| (0..4).flat_map(|r| m.row(r).to_array()).collect::<Vec<f64>>();
-    let mut arrays = Vec::new();
-    for i in 0..n {
-        let a = i as f64 * 0.05;
-        let c = DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin());
-        let f = (-c).normalize();
-        let r = f.cross(DVec3::Y).normalize();
-        let d = f.cross(r);
-        let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W).transpose() * DMat4::from_translation(-c);
-        arrays.push((format!("world_mat_{i}"), rows(k * w2c)));
-        arrays.push((format!("scale_mat_{i}"), rows(DMat4::from_scale(DVec3::splat(scale)))));
-    }
-    arrays
-}
+#[allow(unused_imports)] // not every test crate that declares `mod common` builds DTU scans
+pub use dtu_arc::dtu_camera_matrices;

@@ -4,9 +4,10 @@
 
 use std::path::Path;
 
-use glam::{DMat4, DVec3, DVec4};
 
 mod common;
+#[path = "../../tests/common/dtu_arc.rs"]
+mod dtu_arc;
 
 use common::{edgenerf, repo, text};
 
@@ -22,18 +23,8 @@ const H: u32 = 24;
 fn write_dtu_scan(root: &Path) {
     std::fs::create_dir_all(root.join("image")).unwrap();
     std::fs::create_dir_all(root.join("mask")).unwrap();
-    let k = DMat4::from_cols(DVec4::new(40.0, 0.0, 0.0, 0.0), DVec4::new(0.0, 40.0, 0.0, 0.0), DVec4::new(16.0, 12.0, 1.0, 0.0), DVec4::W);
-    let rows = |m: DMat4| (0..4).flat_map(|r| m.row(r).to_array()).collect::<Vec<f64>>();
-    let mut mats = Vec::new();
+    let mats = dtu_arc::dtu_camera_matrices(VIEWS, W, H, 1.0);
     for i in 0..VIEWS {
-        let a = i as f64 * 0.05;
-        let c = DVec3::new(2.5 * a.cos(), 1.0, 2.5 * a.sin());
-        let f = (-c).normalize();
-        let r = f.cross(DVec3::Y).normalize();
-        let d = f.cross(r);
-        let w2c = DMat4::from_cols(r.extend(0.0), d.extend(0.0), f.extend(0.0), DVec4::W).transpose() * DMat4::from_translation(-c);
-        mats.push((format!("world_mat_{i}"), rows(k * w2c)));
-        mats.push((format!("scale_mat_{i}"), rows(DMat4::IDENTITY)));
         let image = image::RgbImage::from_fn(W, H, |x, y| {
             let v = |s: f64| (127.0 + 120.0 * (s + i as f64 * 0.3).sin()) as u8;
             image::Rgb([v(x as f64 * 0.4), v(y as f64 * 0.5 + 1.0), v((x + y) as f64 * 0.2 + 2.0)])
