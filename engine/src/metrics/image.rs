@@ -141,13 +141,16 @@ pub fn masked_image_metrics(
     if weight <= 0.0 {
         return Err(MetricsError::Empty { what: "mask" });
     }
-    let composite = |img: &[f32]| -> Vec<f32> {
-        img.iter().enumerate().map(|(i, &v)| v * mask[i / 3] + (1.0 - mask[i / 3])).collect()
-    };
     Ok(ImageMetrics {
         psnr: psnr_from_mse(se / (3.0 * weight)),
-        ssim: ssim(width, height, 3, &composite(a), &composite(b))?,
+        ssim: ssim(width, height, 3, &white_composite(a, mask), &white_composite(b, mask))?,
     })
+}
+
+/// `img * mask + (1 - mask)`: an RGB-interleaved image over white outside the mask (one
+/// mask value per pixel), as the masked protocol's SSIM and LPIPS see it.
+pub(crate) fn white_composite(img: &[f32], mask: &[f32]) -> Vec<f32> {
+    img.iter().enumerate().map(|(i, &v)| v * mask[i / 3] + (1.0 - mask[i / 3])).collect()
 }
 
 /// SciPy's `_gaussian_kernel1d`: `exp(-x^2 / (2 sigma^2))` for `x = -radius..=radius`,

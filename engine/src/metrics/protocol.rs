@@ -17,7 +17,7 @@
 use crate::data::Scene;
 
 use super::MetricsError;
-use super::image::{ImageMetrics, image_metrics, masked_image_metrics};
+use super::image::{ImageMetrics, image_metrics, masked_image_metrics, white_composite};
 
 /// How a view is scored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -79,9 +79,4 @@ pub fn comparison_images(scene: &Scene, v: usize, rgb: &[f32]) -> Result<(Vec<f3
         (_, Some(mask)) => (white_composite(rgb, mask), white_composite(image, mask)),
         (_, None) => (rgb.to_vec(), image.clone()),
     })
-}
-
-/// `img * mask + (1 - mask)` (RGB interleaved, one mask value per pixel).
-fn white_composite(img: &[f32], mask: &[f32]) -> Vec<f32> {
-    img.iter().enumerate().map(|(i, &v)| v * mask[i / 3] + (1.0 - mask[i / 3])).collect()
 }
