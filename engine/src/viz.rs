@@ -6,7 +6,7 @@
 //! where `valid`), so one floater does not flatten the map; normals map
 //! `n -> (n + 1) / 2` (world space, the usual convention), zero normals to black.
 
-use crate::data::ImageRgb;
+use crate::data::{ImageRgb, quantile};
 
 /// Keypoints of the depth colour map: a piecewise-linear approximation of Google's
 /// Turbo (dark blue, blue, cyan, green, yellow, orange, dark red), evenly spaced.
@@ -29,32 +29,37 @@ pub fn turbo(t: f32) -> [f32; 3] {
     [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
 }
 
-/// Numpy's `quantile(values, q)` (linear interpolation between the two nearest ranks,
-/// `q` in `[0, 1]`); `None` when empty. Sorts `values`.
-pub fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    values.sort_unstable_by(f64::total_cmp);
-    let pos = q.clamp(0.0, 1.0) * (values.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    Some(values[lo] + (pos - lo as f64) * (values[hi] - values[lo]))
-}
-
 /// Depth colourised near = blue .. far = red over the robust range of the pixels
 /// where `valid` (all when `None`); invalid pixels black. Returns the range used.
 pub fn depth_image(width: u32, height: u32, depth: &[f32], valid: Option<&[bool]>) -> (ImageRgb, [f32; 2]) {
-    let is_valid = |i: usize| valid.is_none_or(|v| v[i]) && depth[i].is_finite();
-    let mut vals: Vec<f64> = (0..depth.len()).filter(|&i| is_valid(i)).map(|i| depth[i] as f64).collect();
+    let range = depth_range(depth, valid);
+    (depth_image_in_range(width, height, depth, valid, range), range)
+}
+
+/// The robust depth range (2nd-98th percentile) of the finite `depth` values where
+/// `valid` (all when `None`); `[0, 1]` when there are none. A video's frames share the
+/// range of all of them, so the colours do not flicker.
+pub fn depth_range(depth: &[f32], valid: Option<&[bool]>) -> [f32; 2] {
+    let mut vals: Vec<f64> =
+        (0..depth.len()).filter(|&i| is_valid_depth(depth, valid, i)).map(|i| depth[i] as f64).collect();
     let lo = quantile(&mut vals, 0.02).unwrap_or(0.0) as f32;
     let hi = quantile(&mut vals, 0.98).unwrap_or(1.0) as f32;
+    [lo, hi]
+}
+
+fn is_valid_depth(depth: &[f32], valid: Option<&[bool]>, i: usize) -> bool {
+    valid.is_none_or(|v| v[i]) && depth[i].is_finite()
+}
+
+/// Depth colourised over `lo..hi` (clamped outside), invalid pixels black.
+pub fn depth_image_in_range(width: u32, height: u32, depth: &[f32], valid: Option<&[bool]>, [lo, hi]: [f32; 2]) -> ImageRgb {
     let span = (hi - lo).max(1e-6);
     let mut img = ImageRgb::new(width, height);
     for (i, &d) in depth.iter().enumerate() {
-        let rgb = if is_valid(i) { turbo((d - lo) / span) } else { [0.0; 3] };
+        let rgb = if is_valid_depth(depth, valid, i) { turbo((d - lo) / span) } else { [0.0; 3] };
         img.data[3 * i..3 * i + 3].copy_from_slice(&rgb);
     }
-    (img, [lo, hi])
+    img
 }
 
 /// Normals to RGB: `(n + 1) / 2`.
@@ -101,6 +106,12 @@ mod tests {
         let (img, [lo, hi]) = depth_image(10, 10, &depth, Some(&valid));
         assert!(lo >= 1.0 && hi < 2.0, "range {lo}..{hi}");
         assert_eq!(&img.data[150..153], &[0.0, 0.0, 0.0]);
+        // A fixed range (a video's): colours on that range, clamped beyond it.
+        let fixed = depth_image_in_range(10, 10, &depth, Some(&valid), [0.0, 4.0]);
+        assert_eq!(&fixed.data[..3], &turbo(1.0));
+        assert_eq!(&fixed.data[3 * 99..], &turbo(depth[99] / 4.0));
+        assert_eq!(&fixed.data[150..153], &[0.0, 0.0, 0.0]);
+        assert_eq!(depth_range(&[f32::NAN], None), [0.0, 1.0]);
     }
 
     #[test]

@@ -122,6 +122,27 @@ fn average_pose(poses: &[DMat4]) -> DMat4 {
     )
 }
 
+/// The scene's depth bounds (the smallest near and the largest far bound of
+/// `poses_bounds.npy`) in the units [`load`] gives the scene: rescaled as the camera
+/// positions are (the near bound becomes `1 / BD_FACTOR`). The loaded scene keeps
+/// only NDC's 0 / 1; NeRF's spiral path focuses between these (`super::paths`).
+pub(super) fn world_bounds(root: &Path) -> Result<[f32; 2], DataError> {
+    let path = root.join("poses_bounds.npy");
+    let array = read_npy(&path)?;
+    array.expect_shape(&path, "poses_bounds", &[None, Some(17)])?;
+    let (near, far) = (0..array.shape[0])
+        .map(|i| array.row(i))
+        .fold((f64::INFINITY, 0.0f64), |(n, f), row| (n.min(row[15]), f.max(row[16])));
+    if !(near > 0.0 && near.is_finite() && far.is_finite() && far >= near) {
+        return Err(DataError::invalid(
+            &path,
+            format!("scene bounds near {near} / far {far}: need finite 0 < near <= far; regenerate it with LLFF's imgs2poses"),
+        ));
+    }
+    let sc = 1.0 / (near * BD_FACTOR);
+    Ok([(near * sc) as f32, (far * sc) as f32])
+}
+
 pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     let poses_path = root.join("poses_bounds.npy");
     let array = read_npy(&poses_path)?;

@@ -1,8 +1,9 @@
 //! Scenes: images, cameras, optional ground truth, and the train/test split.
 //!
 //! Owns the one [`Scene`] type every format loads into, the camera model and ray
-//! generation ([`camera`]), and the format readers (`blender`, `llff`, `dtu`, plus the
-//! NumPy readers they share). Nothing here touches the GPU.
+//! generation ([`camera`]), novel-view camera paths for videos ([`paths`]), the format
+//! readers (`blender`, `llff`, `dtu`, plus the NumPy readers they share), and numpy's
+//! [`quantile`]. Nothing here touches the GPU.
 //!
 //! # Conventions (stated once, used everywhere)
 //! * **Camera frame**: OpenGL / NeRF. The camera looks down its local `-z`, `+x` is
@@ -36,7 +37,9 @@ pub mod camera;
 mod error;
 mod image_io;
 pub mod npy;
+pub mod paths;
 mod split;
+mod stats;
 
 mod blender;
 mod dtu;
@@ -50,6 +53,8 @@ pub use image_io::{
     ImageInfo, ImageRgb, image_info, load_depth_exr, load_mask, load_normal_exr, save_depth_exr,
     save_normal_exr,
 };
+pub use paths::{PathError, PathKind, camera_path};
+pub use stats::quantile;
 pub use split::{DTU_EXCLUDED_VIEWS, DTU_TRAIN_VIEWS, LLFF_HOLD, Split, dtu_split, linspace_indices, llff_split};
 
 /// Which reader produced a scene.
@@ -189,12 +194,35 @@ impl Scene {
 
     /// [`Scene::ray`] for every pixel of view `view`, row-major.
     pub fn image_rays(&self, view: usize) -> Vec<Ray> {
-        let rays = self.views[view].camera.pixel_rays();
+        self.camera_rays(&self.views[view].camera)
+    }
+
+    /// The rays through every pixel of `camera` (any pose, e.g. a [`paths`] camera),
+    /// row-major, in the space the field works in: world space, or NDC.
+    pub fn camera_rays(&self, camera: &Camera) -> Vec<Ray> {
+        let rays = camera.pixel_rays();
         match &self.ndc {
             Some(ndc) => rays.into_iter().map(|r| ndc.ray_to_ndc(r)).collect(),
             None => rays,
         }
     }
+}
+
+/// Tests on real data: the scene `rel` (`llff/fern`) under `$EDGENERF_DATA` (default
+/// `../shared/data` beside the repository), or `None` after a note when it is absent
+/// (a failure with `EDGENERF_REQUIRE_DATA=1`, as in the integration tests).
+#[cfg(test)]
+pub(crate) fn real_scene_dir(rel: &str) -> Option<PathBuf> {
+    let root = std::env::var_os("EDGENERF_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
+    let dir = root.join(rel);
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    assert!(std::env::var("EDGENERF_REQUIRE_DATA").as_deref() != Ok("1"), "real data required but {} is absent", dir.display());
+    eprintln!("skipping: {} not found (set EDGENERF_DATA)", dir.display());
+    None
 }
 
 /// Finds which reader understands `root`.

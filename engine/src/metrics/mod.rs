@@ -47,9 +47,8 @@ pub use geometry::{
 };
 pub use image::{ImageMetrics, image_metrics, masked_image_metrics, psnr, psnr_from_mse, ssim};
 pub use lpips::{Lpips, LpipsError, LpipsNet};
-/// Numpy's quantile; it lives in [`crate::viz`], whose robust colour ranges need it and
-/// which may not import this room.
-pub use crate::viz::quantile;
+/// Numpy's quantile; it lives in [`crate::data`], shared with `viz` and camera paths.
+pub use crate::data::quantile;
 pub use protocol::{ImageScore, Protocol, comparison_images, score_view};
 
 /// Inputs a metric cannot be computed on.

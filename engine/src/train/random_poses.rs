@@ -9,9 +9,10 @@
 //!   their mean in the average camera frame (RegNeRF: the 100th percentile of the
 //!   recentred positions); every pose looks at the point at the focus depth on the
 //!   average camera's axis, with the average up vector. Focus depth: RegNeRF's
-//!   `1 / ((1 - 0.75) / close + 0.75 / inf)` with `close = 0.9 min_bound`; the loader
-//!   keeps no bounds, so `min_bound = near / 0.75` (the rescaling makes it so) and the
-//!   `inf = 5 max_bound` term (a few per cent) is dropped: `4 * 0.9 near / 0.75`.
+//!   `1 / ((1 - 0.75) / close + 0.75 / inf)` with `close = 0.9 min_bound`
+//!   ([`focus_depth`]); the scene keeps no bounds, so `min_bound = near / 0.75` (the
+//!   rescaling makes it so) and the `inf = 5 max_bound` term is dropped (11 % on fern):
+//!   `4 * 0.9 near / 0.75`. (The video spiral of `data::paths` re-reads the bounds.)
 //! * [`PoseKind::Box`] (DTU): positions in the same box; each pose looks at the focus
 //!   point (the point nearest to all training optical axes, RegNeRF's `focus_pt_fn`)
 //!   jittered by a normal of sigma `0.125 s`, where `s` is the box's largest half-extent
@@ -35,6 +36,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
+use crate::data::paths::{average_pose, focus_depth, focus_point, look_at};
 use crate::data::{Camera, Scene};
 use crate::layout::GpuRay;
 
@@ -78,44 +80,6 @@ fn normal(rng: &mut SplitMix64) -> f32 {
     (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
 }
 
-/// An OpenGL `c2w` at `position` whose `-z` axis points at `target`, `+y` towards `up`.
-pub fn look_at(position: Vec3, target: Vec3, up: Vec3) -> Mat4 {
-    let z = (position - target).normalize();
-    let mut x = up.cross(z);
-    if x.length() < 1e-6 {
-        // Looking along `up`: any perpendicular will do.
-        x = z.any_orthonormal_vector().cross(z);
-    }
-    let x = x.normalize();
-    let y = z.cross(x);
-    Mat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), position.extend(1.0))
-}
-
-/// The point nearest (least squares) to all cameras' optical axes (RegNeRF's
-/// `focus_pt_fn`); the mean camera position when the axes are (nearly) parallel.
-pub fn focus_point(cameras: &[Camera]) -> Vec3 {
-    let (mut a, mut b) = (glam::DMat3::ZERO, glam::DVec3::ZERO);
-    for c in cameras {
-        let d = c.forward().as_dvec3();
-        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += m;
-        b += m * c.origin().as_dvec3();
-    }
-    let mean = cameras.iter().map(|c| c.origin()).sum::<Vec3>() / cameras.len().max(1) as f32;
-    if a.determinant().abs() < 1e-9 { mean } else { (a.inverse() * b).as_vec3() }
-}
-
-/// Mean position, rotation of the average pose (RegNeRF's `poses_avg`: mean axis and
-/// mean up), and the mean up vector.
-fn average_pose(cameras: &[Camera]) -> (Vec3, Mat3, Vec3) {
-    let n = cameras.len().max(1) as f32;
-    let mean = cameras.iter().map(|c| c.origin()).sum::<Vec3>() / n;
-    let back = cameras.iter().map(|c| -c.forward()).sum::<Vec3>() / n;
-    let up = (cameras.iter().map(|c| c.c2w.y_axis.truncate()).sum::<Vec3>() / n).normalize();
-    let rot = Mat3::from_mat4(look_at(mean, mean - back, up));
-    (mean, rot, up)
-}
-
 /// Half-extents of the box the training cameras span around their mean, in the frame
 /// of the average pose.
 fn camera_box(cameras: &[Camera], mean: Vec3, rot: Mat3) -> Vec3 {
@@ -144,8 +108,7 @@ pub fn random_poses(scene: &Scene, kind: PoseKind, n: usize, seed: u64) -> Vec<C
             let c2w = match kind {
                 PoseKind::Llff => {
                     let near = scene.ndc.map_or(scene.near.max(1e-3), |p| p.near);
-                    let focus_depth = 4.0 * 0.9 * near / 0.75;
-                    let target = mean + rot * Vec3::new(0.0, 0.0, -focus_depth);
+                    let target = mean + rot * Vec3::new(0.0, 0.0, -focus_depth(near / 0.75, f32::INFINITY));
                     look_at(in_box(&mut rng), target, up)
                 }
                 PoseKind::Box => {
@@ -275,14 +238,7 @@ mod tests {
 
     #[test]
     fn llff_poses_on_fern_when_available() {
-        let root = std::env::var_os("EDGENERF_DATA")
-            .map(std::path::PathBuf::from)
-            .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
-        let dir = root.join("llff/fern");
-        if !dir.is_dir() {
-            eprintln!("skipping: {} not found (set EDGENERF_DATA)", dir.display());
-            return;
-        }
+        let Some(dir) = crate::data::real_scene_dir("llff/fern") else { return };
         let s = Scene::load(dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
         assert_eq!(PoseKind::for_scene(&s), PoseKind::Llff);
         let cams = train_cameras(&s);
@@ -292,12 +248,7 @@ mod tests {
     }
 
     #[test]
-    fn look_at_and_focus_point() {
-        let m = look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y);
-        assert!((m.z_axis.truncate() - Vec3::Z).length() < 1e-6 && (m.y_axis.truncate() - Vec3::Y).length() < 1e-6);
-        let cam = |p: Vec3| Camera { width: 8, height: 8, fx: 8.0, fy: 8.0, cx: 4.0, cy: 4.0, c2w: look_at(p, Vec3::new(1.0, 2.0, 3.0), Vec3::Z) };
-        let f = focus_point(&[cam(Vec3::new(5.0, 0.0, 3.0)), cam(Vec3::new(0.0, 6.0, 4.0)), cam(Vec3::new(-3.0, -2.0, 6.0))]);
-        assert!((f - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-3, "{f}");
+    fn normal_draws_are_standard_normal() {
         let mut rng = SplitMix64::mixed(1);
         let xs: Vec<f32> = (0..4000).map(|_| normal(&mut rng)).collect();
         let mean = xs.iter().sum::<f32>() / 4000.0;
