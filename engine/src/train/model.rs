@@ -8,7 +8,7 @@
 //! field's own densities, or restored from a checkpoint; rendering for images uses no
 //! jitter (deterministic output).
 
-use crate::data::Scene;
+use crate::data::{Camera, Scene};
 use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
@@ -306,8 +306,14 @@ impl Model {
 
     /// Renders view `view` of `scene` with depth and normals.
     pub fn render_view(&mut self, gpu: &Gpu, scene: &Scene, view: usize) -> Result<RenderedView, TrainError> {
-        let cam = &scene.views[view].camera;
-        let rays = scene.image_rays(view);
+        self.render_camera(gpu, scene, &scene.views[view].camera)
+    }
+
+    /// Renders what `cam` (any pose and intrinsics, e.g. a camera path's) sees of
+    /// `scene`, with depth and normals, through the scene's ray space (NDC for
+    /// forward-facing scenes) as training does.
+    pub fn render_camera(&mut self, gpu: &Gpu, scene: &Scene, cam: &Camera) -> Result<RenderedView, TrainError> {
+        let rays = scene.camera_rays(cam);
         let gpu_rays: Vec<GpuRay> = rays.iter().map(|r| super::rays::to_gpu_ray(scene, r)).collect();
         let (outs, samples) = self.render_rays(gpu, &gpu_rays, true)?;
         let ndc = scene.ndc.is_some();
