@@ -6,6 +6,7 @@ mod output;
 mod plot;
 mod report;
 mod suite;
+mod video;
 
 use clap::{Parser, Subcommand};
 
@@ -29,7 +30,8 @@ enum Command {
     Info(cmd::info::Args),
     /// Train a field on a scene (progress, checkpoints, log, test evaluation).
     Train(cmd::train::Args),
-    /// Render views of a trained run: RGB, depth, normals, opacity.
+    /// Render views of a trained run (RGB, depth, normals, opacity), or a camera path
+    /// (spiral, orbit, interpolate) as frames and videos.
     Render(cmd::render::Args),
     /// Every image and geometry metric of a trained run, with error maps.
     Eval(cmd::eval::Args),

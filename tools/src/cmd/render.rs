@@ -1,14 +1,17 @@
-//! `edgenerf render`: render views of a trained run (RGB, depth, normals, opacity),
-//! the loading of a run's model for `render` and `eval` (no optimizer state), and the
-//! test-view evaluation shared with `train`.
+//! `edgenerf render`: render views of a trained run (RGB, depth, normals, opacity), or
+//! a novel-view camera path (`--path`: frames and an animation per stream), the loading
+//! of a run's model for `render` and `eval` (no optimizer state), and the test-view
+//! evaluation shared with `train`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use edgenerf::data::Scene;
+use edgenerf::data::{Camera, PathKind, Scene};
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::train::{Checkpoint, Model};
-use indicatif::ProgressBar;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::video::{self, VideoFormat};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -37,10 +40,48 @@ pub struct Args {
     /// that change the parameters' shapes are refused when the checkpoint loads.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+    /// Render a novel-view camera path instead of dataset views: `spiral` (NeRF's LLFF
+    /// spiral), `orbit` (around an object-centric scene) or `interpolate` (a loop through
+    /// the training poses). Writes DIR/rgb, DIR/depth and DIR/normals (0000.png, ...),
+    /// DIR/path.json (the cameras) and one animation per stream.
+    #[arg(long, value_parser = ["spiral", "orbit", "interpolate"], conflicts_with = "split")]
+    path: Option<String>,
+    /// Frames of the path (NeRF's 120: 4 s at 30 fps).
+    #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u32).range(1..=100_000), requires = "path")]
+    frames: u32,
+    /// Frames per second of the animation.
+    #[arg(long, default_value_t = 30.0, value_parser = parse_fps, requires = "path")]
+    fps: f32,
+    /// The animations: mp4 (H.264 through ffmpeg), gif, auto (mp4 when ffmpeg is on
+    /// PATH, else gif) or none (frames only).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "mp4", "gif", "none"], requires = "path")]
+    video: String,
+    /// Size of the path's frames relative to the training images (0.5: half the width
+    /// and height, a quick preview).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_scale, requires = "path")]
+    scale: f32,
+    /// Replace the frames and animations of an earlier path render in --out.
+    #[arg(long, requires = "path")]
+    overwrite: bool,
+}
+
+fn parse_fps(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.1..=240.0).contains(&v) { Ok(v) } else { Err(format!("{v} is outside 0.1..=240 frames per second")) }
+}
+
+fn parse_scale(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
+    if v > 0.0 && v <= 4.0 { Ok(v) } else { Err(format!("{v} is outside (0, 4] (1 = the training images' size)")) }
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     crate::output::ensure_dir(&args.out, "--out")?;
+    // A path render's requests are checked before the model loads.
+    let path = match &args.path {
+        Some(kind) => Some(prepare_path(&args, kind)?),
+        None => None,
+    };
     let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts)?;
     if let Some(b) = &args.backend {
         let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;
@@ -51,6 +92,9 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     }
     if let Some(mode) = &args.sampler {
         run.model.config.sampler.mode = serde_json::from_value(serde_json::Value::String(mode.clone()))?;
+    }
+    if let Some(path) = path {
+        return render_path(&args, path, &mut run);
     }
     let views = split_views(&run.scene, &args.split)?;
     if args.split == "test" {
@@ -64,6 +108,117 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     }
     bar.finish();
     eprintln!("wrote renders to {}", args.out.display());
+    Ok(())
+}
+
+/// The streams of a path render: folder (and animation) name.
+const STREAMS: [&str; 3] = ["rgb", "depth", "normals"];
+
+/// What `render --path` was asked for, checked before the model loads.
+struct PathRequest {
+    kind: PathKind,
+    video: Option<VideoFormat>,
+    /// The files and folders of an earlier path render in --out (replaced with --overwrite).
+    earlier: Vec<PathBuf>,
+}
+
+/// Parses the path and video requests, and refuses an --out that holds an earlier path
+/// render unless --overwrite.
+fn prepare_path(args: &Args, kind: &str) -> anyhow::Result<PathRequest> {
+    let kind: PathKind = kind.parse().map_err(anyhow::Error::msg)?;
+    let video = video::choose(&args.video)?;
+    let out = &args.out;
+    let earlier: Vec<PathBuf> = STREAMS
+        .iter()
+        .flat_map(|s| [out.join(s), out.join(format!("{s}.mp4")), out.join(format!("{s}.gif"))])
+        .chain([out.join("path.json")])
+        .filter(|p| p.exists())
+        .collect();
+    if !earlier.is_empty() && !args.overwrite {
+        bail!(
+            "{} already holds a path render ({}); pass --overwrite to replace it, or another --out",
+            out.display(),
+            earlier.iter().map(|p| p.file_name().unwrap().to_string_lossy()).collect::<Vec<_>>().join(", ")
+        );
+    }
+    Ok(PathRequest { kind, video, earlier })
+}
+
+/// `render --path`: the cameras of the path, one frame per camera in each stream (depth
+/// coloured over the range of all frames, so it does not flicker), `path.json`, and the
+/// animations. An earlier path render in --out is removed once the path's cameras exist.
+fn render_path(args: &Args, request: PathRequest, run: &mut LoadedRun) -> anyhow::Result<()> {
+    let PathRequest { kind, video: format, earlier } = request;
+    let cameras: Vec<Camera> = edgenerf::data::camera_path(&run.scene, kind, args.frames as usize)?
+        .into_iter()
+        .map(|c| {
+            let size = |n: u32| ((n as f32 * args.scale).round() as u32).max(1);
+            c.resized(size(c.width), size(c.height))
+        })
+        .collect();
+    let out = &args.out;
+    for p in earlier {
+        if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) }
+            .with_context(|| format!("removing the earlier {}", p.display()))?;
+    }
+    for s in STREAMS {
+        std::fs::create_dir_all(out.join(s)).with_context(|| format!("creating {}", out.join(s).display()))?;
+    }
+    let (w, h) = (cameras[0].width, cameras[0].height);
+    let record = serde_json::json!({ "path": kind, "frames": cameras.len(), "fps": args.fps, "cameras": cameras });
+    edgenerf::train::output::write_atomic(&out.join("path.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
+    println!("{} path: {} frames of {w}x{h} from the {} training views of {}", kind.name(), cameras.len(), run.scene.split.train.len(), run.scene.root.display());
+
+    let bar = ProgressBar::new(cameras.len() as u64);
+    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} frames [{elapsed_precise}<{eta_precise}] {msg}").unwrap());
+    let mut depths = Vec::with_capacity(cameras.len());
+    let mut samples = 0u64;
+    for (i, cam) in cameras.iter().enumerate() {
+        let r = run.model.render_camera(&run.gpu, &run.scene, cam)?;
+        edgenerf::train::output::rgb_image(&r).save_png(video::frame_path(&out.join("rgb"), i))?;
+        edgenerf::viz::normal_image(w, h, &r.unit_normals()).save_png(video::frame_path(&out.join("normals"), i))?;
+        depths.push(edgenerf::train::output::shown_depth(&r));
+        samples += r.samples;
+        bar.set_message(format!("{:.1} samples/ray", samples as f64 / ((i + 1) as f64 * (w * h) as f64)));
+        bar.inc(1);
+    }
+    bar.finish();
+    // One colour range for the whole path: the robust range of every frame's depth.
+    let all: Vec<f32> = depths.iter().flat_map(|(d, _)| d.iter().copied()).collect();
+    let valid: Vec<bool> = depths.iter().flat_map(|(_, v)| v.iter().copied()).collect();
+    let range = edgenerf::viz::depth_range(&all, Some(&valid));
+    for (i, (d, v)) in depths.iter().enumerate() {
+        edgenerf::viz::depth_image_in_range(w, h, d, Some(v), range).save_png(video::frame_path(&out.join("depth"), i))?;
+    }
+    println!(
+        "wrote {} frames to {}/{{rgb,depth,normals}}/ and path.json ({:.1} samples per ray; depth colours over {:.3}..{:.3})",
+        cameras.len(),
+        out.display(),
+        samples as f64 / (cameras.len() as f64 * (w * h) as f64),
+        range[0],
+        range[1]
+    );
+    let Some(format) = format else { return Ok(()) };
+    let bar = ProgressBar::new(STREAMS.len() as u64);
+    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} animations [{elapsed_precise}] {msg}").unwrap());
+    let mut written = Vec::new();
+    for s in STREAMS {
+        let file = out.join(format!("{s}.{}", format.extension()));
+        bar.set_message(file.display().to_string());
+        video::encode(format, &out.join(s), cameras.len(), args.fps, &file)?;
+        written.push(file);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let how = match format {
+        VideoFormat::Mp4 => "H.264 MP4 through ffmpeg",
+        VideoFormat::Gif => "animated GIF, looping",
+    };
+    println!(
+        "animations ({how}, {} fps): {}",
+        args.fps,
+        written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+    );
     Ok(())
 }
 
