@@ -594,6 +594,7 @@ mod tests {
             ("sampler.resolution=0", "sampler"),
             ("field.n_levels=0", "n_levels"),
             ("priors.occlusion=-1", "priors.occlusion"),
+            ("priors.orientation=-0.1", "priors.orientation"),
         ] {
             let mut c = RunConfig::default();
             c.set(set).unwrap();

@@ -155,6 +155,8 @@ pub struct StepStats {
     /// 360's distortion and FreeNeRF's occlusion term.
     pub loss_distortion: f32,
     pub loss_occlusion: f32,
+    /// Ref-NeRF's orientation penalty on the analytic normals.
+    pub loss_orientation: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -197,17 +199,18 @@ impl StepStats {
             sample_capacity,
             loss_distortion: losses.distortion,
             loss_occlusion: losses.occlusion,
+            loss_orientation: losses.orientation,
         }
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -228,7 +231,8 @@ impl StepStats {
             self.occupied_fraction,
             self.sample_capacity,
             self.loss_distortion,
-            self.loss_occlusion
+            self.loss_occlusion,
+            self.loss_orientation
         )
     }
 }
@@ -448,6 +452,7 @@ impl Trainer {
             reg: if patches { config.reg.weights_at(step, self.scene.is_dtu()) } else { None },
             tv: config.regnerf.tv_weight_at(step).filter(|_| self.pipeline.tv_rays() > 0),
             jitter: (crate::rng::SplitMix64::mixed(config.train.seed ^ step.rotate_left(17)).next_u32()) | 1,
+            orientation: config.priors.orientation > 0.0,
         }
     }
 

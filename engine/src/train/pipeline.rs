@@ -61,12 +61,15 @@ pub struct StepPlan {
     pub tv: Option<f32>,
     /// Seed of the sampler's jitter.
     pub jitter: u32,
+    /// Whether the orientation prior is on (it penalises the analytic normals).
+    pub orientation: bool,
 }
 
 impl StepPlan {
-    /// Whether the field computes analytic normals (the normal regularizer is on).
+    /// Whether the field computes analytic normals (the normal regularizer or the
+    /// orientation prior is on).
     pub fn normals(&self) -> bool {
-        self.reg.is_some_and(|w| w.lambda_normal > 0.0)
+        self.orientation || self.reg.is_some_and(|w| w.lambda_normal > 0.0)
     }
 }
 
@@ -81,9 +84,11 @@ pub struct BatchLosses {
     pub normal: f32,
     /// RegNeRF's depth TV on the random-pose patches.
     pub tv: f32,
-    /// The sparse-view priors: mip-NeRF 360's distortion and FreeNeRF's occlusion.
+    /// The sparse-view priors: mip-NeRF 360's distortion, FreeNeRF's occlusion and
+    /// Ref-NeRF's orientation penalty.
     pub distortion: f32,
     pub occlusion: f32,
+    pub orientation: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
     /// The priors' weights the losses entered with.
@@ -100,6 +105,7 @@ impl BatchLosses {
             (self.tv, "the depth TV"),
             (self.distortion, "the distortion prior"),
             (self.occlusion, "the occlusion prior"),
+            (self.orientation, "the orientation penalty"),
         ] {
             if !value.is_finite() {
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -109,7 +115,7 @@ impl BatchLosses {
     }
 
     /// The total loss with the weights of `plan`: `lambda1 L_c + lambda2 L_z + lambda3
-    /// L_n + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ`.
+    /// L_n + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ + lambda_ori L_ori`.
     pub fn total(&self, plan: &StepPlan) -> f32 {
         let (lambda_depth, lambda_normal) = plan.reg.map_or((0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal));
         plan.lambda_color * self.color
@@ -118,6 +124,7 @@ impl BatchLosses {
             + plan.tv.unwrap_or(0.0) * self.tv
             + self.priors.lambda_distortion * self.distortion
             + self.priors.lambda_occlusion * self.occlusion
+            + self.priors.lambda_orientation * self.orientation
     }
 }
 
@@ -235,7 +242,8 @@ impl Pipeline {
     }
 
     /// The field's backward pass over the last [`Pipeline::forward`]: its gradients
-    /// zeroed, then this batch's added (second order through the normals when `L_n` is on).
+    /// zeroed, then this batch's added (second order through the normals when `L_n` or
+    /// the orientation prior is on).
     pub fn backward(&self, gpu: &Gpu, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
         model.field.zero_grads(gpu);
         model.field.backward(gpu, &self.bufs.batch, &self.field_grads, plan.normals())?;
@@ -333,7 +341,17 @@ impl Pipeline {
         let reg = if plan.reg.is_some() { self.edge_reg.losses(gpu, n / 4)? } else { EdgeRegLosses::default() };
         let tv = if plan.tv.is_some() { self.depth_tv.loss(gpu, self.n_tv)? } else { 0.0 };
         let priors = *self.renderer.priors();
-        let (distortion, occlusion) = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { (0.0, 0.0) };
-        Ok(BatchLosses { color, depth: reg.depth, normal: reg.normal, tv, distortion, occlusion, rays_dropped, priors })
+        let p = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { Default::default() };
+        Ok(BatchLosses {
+            color,
+            depth: reg.depth,
+            normal: reg.normal,
+            tv,
+            distortion: p.distortion,
+            occlusion: p.occlusion,
+            orientation: p.orientation,
+            rays_dropped,
+            priors,
+        })
     }
 }

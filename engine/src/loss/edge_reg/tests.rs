@@ -231,7 +231,7 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget, depth_estimate: De
                 .map(|s| {
                     let smp = &samples[s as usize];
                     let t = m.forward(smp.pos.map(|v| v as f64), smp.dir.map(|v| v as f64));
-                    render_ref::RefSample { sigma: t.sigma, rgb: t.rgb, normal: t.normal, t: smp.t as f64, dt: smp.dt as f64 }
+                    render_ref::RefSample { sigma: t.sigma, rgb: t.rgb, normal: t.normal, t: smp.t as f64, dt: smp.dt as f64, dir: smp.dir.map(|v| v as f64) }
                 })
                 .collect();
             let ray = render_ref::composite(&ref_samples, [0.0; 3], 0.0);
