@@ -157,6 +157,9 @@ pub struct StepStats {
     pub loss_occlusion: f32,
     /// Ref-NeRF's orientation penalty on the analytic normals.
     pub loss_orientation: f32,
+    /// The edge-guided depth-normal consistency (unweighted) and its weight this step.
+    pub loss_depth_normal: f32,
+    pub lambda_depth_normal: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -200,17 +203,19 @@ impl StepStats {
             loss_distortion: losses.distortion,
             loss_occlusion: losses.occlusion,
             loss_orientation: losses.orientation,
+            loss_depth_normal: losses.depth_normal,
+            lambda_depth_normal: plan.reg.map_or(0.0, |w| w.lambda_depth_normal),
         }
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -232,7 +237,9 @@ impl StepStats {
             self.sample_capacity,
             self.loss_distortion,
             self.loss_occlusion,
-            self.loss_orientation
+            self.loss_orientation,
+            self.loss_depth_normal,
+            self.lambda_depth_normal
         )
     }
 }

@@ -311,6 +311,9 @@ impl RunObserver for Progress {
         if self.orientation {
             reg += &format!(" Lori {:.2e}", stats.loss_orientation);
         }
+        if stats.lambda_depth_normal > 0.0 {
+            reg += &format!(" Ldn {:.2e}", stats.loss_depth_normal);
+        }
         self.bar.set_message(format!(
             "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
             stats.loss_color, ema, stats.samples_per_ray, steps_per_s
