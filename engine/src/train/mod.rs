@@ -16,16 +16,18 @@
 //!   the step's StepPlan (loss weights, jitter)
 //! Pipeline::forward: random backgrounds, random-pose rays appended, ranges annealed
 //!   -> sampler (occupancy grid + BVH) -> samples -> field forward (+ analytic normals
-//!   when L_n is on) -> composite -> photometric loss L_c (+ edge-guided L_z, L_n on
-//!   the patches, + depth TV on the random-pose patches; rays cut by the sample
-//!   capacity dropped) -> composite backward (+ the distortion and occlusion priors)
+//!   when L_n, L_dn or the orientation prior is on) -> composite -> photometric loss
+//!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + depth TV on the random-pose
+//!   patches; rays cut by the sample capacity dropped) -> composite backward (+ the
+//!   distortion, occlusion and orientation priors)
 //!   -> loss readbacks
 //! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
 //! Pipeline::backward: zero grads -> field backward (second order through the normals)
 //! Trainer: grad norm / NaN check / clip -> Adam (GPU) -> StepStats
 //! ```
-//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv` plus the
-//! weighted priors (see [`crate::loss::edge_reg`], [`crate::loss::depth_tv`],
+//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_dn L_dn +
+//! lambda_tv L_tv` plus the weighted priors (see [`crate::loss::edge_reg`],
+//! [`crate::loss::depth_normal`], [`crate::loss::depth_tv`],
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.
