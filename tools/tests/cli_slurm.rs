@@ -98,12 +98,12 @@ fn slurm_script_manifest_run_index_and_killed_tasks() {
     assert!(!r.status.success() && text(&r).contains("the suite has 3 runs (0 to 2)"), "{}", text(&r));
 
     // A task Slurm killed leaves no record, only its log: the report shows why, and where.
-    std::fs::write(out.join("slurm/logs/task-1.log"), "run 1 of 3: turntable__edge-gt__r0\nslurmstepd: error: *** JOB 7 ON n1 CANCELLED AT 2026-01-01T00:00:00 DUE TO TIME LIMIT ***\n").unwrap();
+    std::fs::write(out.join("slurm/logs/task-1.log"), "run 1 of 3: turntable__edge-gt__r0\nslurmstepd-n1: error: *** JOB 7 ON n1 CANCELLED AT 2026-01-01T00:00:00 DUE TO TIME LIMIT ***\n").unwrap();
     let r = bench(&[s, "--out", o, "--report-only"]);
     assert!(r.status.success(), "{}", text(&r));
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for want in [
-        "| `turntable__edge-gt__r0` | unfinished; its log ends: slurmstepd: error: *** JOB 7 ON n1 CANCELLED AT 2026-01-01T00:00:00 DUE TO TIME LIMIT *** | `slurm/logs/task-1.log` |",
+        "| `turntable__edge-gt__r0` | unfinished; its log ends: slurmstepd-n1: error: *** JOB 7 ON n1 CANCELLED AT 2026-01-01T00:00:00 DUE TO TIME LIMIT *** | `slurm/logs/task-1.log` |",
         "| `turntable__none__r0` | not run yet (or interrupted) | - |",
         "no_such_key",
     ] {
