@@ -5,6 +5,7 @@ mod cmd;
 mod output;
 mod plot;
 mod report;
+mod slurm;
 mod suite;
 
 use clap::{Parser, Subcommand};
