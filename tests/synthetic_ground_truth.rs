@@ -377,7 +377,8 @@ fn gt_mesh_is_the_surface_of_the_gt_depth() {
 
 /// The mesh metrics over the surface the cameras see: the GT mesh against itself
 /// scores 0 and 1; shifted up by 2 % of the box diagonal it scores that distance
-/// where the shift is normal to the surface, and F 0 at a threshold below it; the
+/// where the shift is normal to the surface (the floor, the tops), and a lower F-score
+/// at a tenth of the threshold; the
 /// hidden underside of `creases`' solids is left out of recall.
 #[test]
 fn mesh_metrics_of_the_gt_mesh_against_itself_and_shifted() {
@@ -399,5 +400,6 @@ fn mesh_metrics_of_the_gt_mesh_against_itself_and_shifted() {
     assert!(shifted.chamfer > 0.005 * diag as f64 && shifted.chamfer < 0.021 * diag as f64, "{shifted:?}");
     assert!(shifted.fscore > 0.3 && shifted.fscore < 0.75, "{shifted:?}");
     let tight = mesh_metrics(&up, &gt, &scene, &MeshMetricParams { threshold_rel: 0.001, ..params }).unwrap().distances;
-    assert!(tight.fscore < 0.1, "{tight:?}");
+    // Only the vertical faces (which a vertical shift slides along) stay within it.
+    assert!(tight.fscore < 0.25 && tight.fscore < shifted.fscore, "{tight:?}");
 }
