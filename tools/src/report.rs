@@ -226,6 +226,10 @@ const GEOMETRY_COLS: &[Col] = &[
     Col("<30 %", "normal.all.under_30", 1, 100.0),
     Col("DBE acc", "boundary.accuracy", 2, 1.0),
     Col("DBE comp", "boundary.completeness", 2, 1.0),
+    Col("Chamfer", "mesh.chamfer", 4, 1.0),
+    Col("F-score", "mesh.fscore", 3, 1.0),
+    Col("precision", "mesh.precision", 3, 1.0),
+    Col("recall", "mesh.recall", 3, 1.0),
 ];
 
 fn metric_cells(rows: &[&Row], cols: &[Col]) -> Vec<String> {
@@ -341,7 +345,9 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
             md,
             "## Geometry against ground truth\n\nDepth errors in scene units (mean absolute, overall / outside / inside the GT \
              edge band of 2 px), AbsRel, RMSE, % of pixels with delta < 1.25; normal angle errors in degrees (mean overall / \
-             non-edge / edge, median, % under 11.25 / 22.5 / 30 deg); iBims-1 depth boundary error in pixels.\n"
+             non-edge / edge, median, % under 11.25 / 22.5 / 30 deg); iBims-1 depth boundary error in pixels; the exported mesh \
+             against the scene's gt_mesh.ply (Chamfer distance in scene units, F-score, precision and recall at 1 % of the \
+             box diagonal; `edgenerf eval`).\n"
         );
         let mut header = vec!["scene", "config"];
         header.extend(GEOMETRY_COLS.iter().map(|c| c.0));

@@ -258,6 +258,13 @@ impl NdcParams {
         )
     }
 
+    /// Maps an NDC point back to world space (inverse of [`NdcParams::point_to_ndc`];
+    /// NDC `z -> 1` is infinitely far, and `z >= 1` gives non-finite values).
+    pub fn ndc_to_world(&self, q: Vec3) -> Vec3 {
+        let z = 2.0 * self.near / (q.z - 1.0);
+        Vec3::new(-q.x * z * self.width / (2.0 * self.focal_x), -q.y * z * self.height / (2.0 * self.focal_y), z)
+    }
+
     /// World depth `-z` of the point at NDC ray parameter `t` (inverse of NDC
     /// `z = 2t - 1 = 1 + 2 near / z`): `near / (1 - t)`.
     pub fn ndc_t_to_world_depth(&self, t: f32) -> f32 {
@@ -363,5 +370,6 @@ mod tests {
         let t = (p.z + 1.0) / 2.0;
         assert!((r.at(t) - p).length() < 1e-4, "{} vs {p}", r.at(t));
         assert!((ndc.ndc_t_to_world_depth(t) + world.z).abs() < 1e-3);
+        assert!((ndc.ndc_to_world(p) - world).length() < 1e-4, "{} vs {world}", ndc.ndc_to_world(p));
     }
 }

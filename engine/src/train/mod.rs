@@ -54,6 +54,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod evaluate;
+pub mod export;
 pub mod model;
 pub mod output;
 pub mod pipeline;

@@ -2,6 +2,7 @@
 pub mod bench;
 pub mod edges;
 pub mod eval;
+pub mod export;
 pub mod info;
 pub mod render;
 pub mod scenes;
