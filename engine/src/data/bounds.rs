@@ -127,6 +127,10 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
         let (poses, sc) = normalize_forward_facing(&c2w, f64::from(min_near));
         for (view, pose) in views.iter_mut().zip(&poses) {
             view.camera.c2w = pose.as_mat4();
+            view.camera.check().map_err(|m| DataError::NonFinite {
+                path: source.to_path_buf(),
+                what: format!("view {} after rescaling by {sc} (closest depth {min_near}) and recentring: {m}", view.name),
+            })?;
             if let Some(depth) = view.depth.as_mut() {
                 depth.iter_mut().for_each(|d| *d *= sc as f32);
             }

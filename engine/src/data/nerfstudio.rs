@@ -209,7 +209,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     let mut guard = SizeGuard::default();
     let mut any_alpha = false;
     let mut views = Vec::with_capacity(n);
-    for (i, frame) in t.frames.iter().enumerate() {
+    for frame in &t.frames {
         let what = || format!("frame '{}' of {}", frame.file_path, json.display());
         let (path, resample) = match aux_file(root, &frame.file_path, "images", factor) {
             (p, false) if factor > 1 => (p, 1),
@@ -238,13 +238,12 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             depth: None,
             normal: None,
         };
-        let needed = opts.load_images && (split.train.contains(&i) || split.test.contains(&i));
-        if let Some(rel) = frame.mask_path.as_deref().filter(|_| needed) {
+        if let Some(rel) = frame.mask_path.as_deref().filter(|_| opts.load_images) {
             let (p, resample) = aux_file(root, rel, "masks", factor);
             let (w, h, mask) = load_mask(&p)?;
             view.mask = Some(fit(&p, &view.path, (w, h), size, resample, mask, false)?);
         }
-        if let Some(rel) = frame.depth_file_path.as_deref().filter(|_| needed) {
+        if let Some(rel) = frame.depth_file_path.as_deref().filter(|_| opts.load_images) {
             let (p, resample) = aux_file(root, rel, "depths", factor);
             let (w, h, z) = load_depth_file(&p)?;
             let z = fit(&p, &view.path, (w, h), size, resample, z, true)?;
