@@ -96,10 +96,28 @@ fn point_box(points: &[Vec3]) -> [Vec3; 2] {
     [lo - pad, hi + pad]
 }
 
+/// View names are file stems; when two collide (`train/r_000.png`, `test/r_000.png`),
+/// every view is named by its path under the folder all images share, without
+/// extension, `/` as `_` (`train_r_000`), so renders and edge maps do not overwrite
+/// each other.
+fn unique_names(root: &Path, views: &mut [View]) {
+    let mut seen = std::collections::HashSet::new();
+    if views.iter().all(|v| seen.insert(v.name.clone())) {
+        return;
+    }
+    let mut common = views[0].path.parent().unwrap_or(root).to_path_buf();
+    while !views.iter().all(|v| v.path.starts_with(&common)) && common.pop() {}
+    for v in views {
+        let rel = v.path.strip_prefix(&common).unwrap_or(&v.path).with_extension("");
+        v.name = rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("_");
+    }
+}
+
 /// The scene of a capture under the module doc's rule; `source` (the camera file) is
 /// named in errors.
 pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, capture: Capture) -> Result<Scene, DataError> {
     let Capture { mut views, split, points, near_far, aabb, background } = capture;
+    unique_names(root, &mut views);
     let cameras: Vec<Camera> = views.iter().map(|v| v.camera).collect();
     let ranges = view_ranges(&cameras, &points);
     let seen: Vec<(f32, f32)> = ranges.iter().flatten().copied().collect();
