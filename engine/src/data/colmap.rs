@@ -31,9 +31,9 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DMat4, DQuat, DVec3, Vec3};
 
 use super::bounds::{Capture, finish_capture};
-use super::image_io::{SizeGuard, file_stem, read_view_image_downscaled};
+use super::image_io::{SizeGuard, read_view_image_downscaled};
 use super::llff::image_folder;
-use super::{Camera, DataError, Lens, LoadOptions, Scene, SceneFormat, View, llff_split};
+use super::{Camera, DataError, Lens, LoadOptions, Scene, SceneFormat, llff_split};
 
 /// One camera of `cameras.txt` / `.bin`: the model's name, size and parameters.
 #[derive(Clone, Debug, PartialEq)]
@@ -432,16 +432,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         let c2w = colmap_c2w(im.qvec, im.tvec).map_err(|m| DataError::NonFinite { path: source.clone(), what: format!("{}: {m}", what()) })?;
         let camera = camera_of(camera, img.info.width, img.info.height, c2w.as_mat4())
             .map_err(|m| DataError::invalid(&source, format!("{}: {m}", what())))?;
-        views.push(View {
-            name: file_stem(&path),
-            path,
-            camera,
-            image: img.image,
-            mask: None,
-            alpha: img.alpha,
-            depth: None,
-            normal: None,
-        });
+        views.push(img.into_view(path, camera));
     }
     let split = llff_split(views.len(), opts.views).map_err(|m| DataError::invalid(root, m))?;
     let capture = Capture { views, split, points: model.points, near_far: [None; 2], aabb: None, background: None };

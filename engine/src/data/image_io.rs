@@ -372,6 +372,23 @@ pub(crate) fn read_view_image(
     Ok(ViewImage { image, alpha, info })
 }
 
+impl ViewImage {
+    /// The view of this picture at `path` with `camera`: named by the file stem, its
+    /// alpha kept, no mask or ground truth yet.
+    pub(crate) fn into_view(self, path: PathBuf, camera: super::Camera) -> super::View {
+        super::View {
+            name: file_stem(&path),
+            path,
+            camera,
+            image: self.image,
+            mask: None,
+            alpha: self.alpha,
+            depth: None,
+            normal: None,
+        }
+    }
+}
+
 /// [`read_view_image`] of a picture downsampled by `factor` on load
 /// ([`super::resample`]: area averaging of the colour and the alpha; the size is
 /// [`downscaled_size`]); `factor` 1 reads it as it is.

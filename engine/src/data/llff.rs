@@ -28,7 +28,7 @@ use std::path::Path;
 
 use glam::{DMat4, DVec3, Vec3};
 
-use super::image_io::{SizeGuard, file_stem, list_images, read_view_image_downscaled};
+use super::image_io::{SizeGuard, list_images, read_view_image_downscaled};
 use super::npy::read_npy;
 use super::{Camera, DataError, LoadOptions, NdcParams, Scene, SceneFormat, View, llff_split};
 
@@ -227,16 +227,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
                 what: format!("row {i} (pose of image {i}), after recentring: {m}"),
             });
         }
-        views.push(View {
-            name: file_stem(path),
-            path: path.clone(),
-            camera,
-            image: img.image,
-            mask: None,
-            alpha: img.alpha,
-            depth: None,
-            normal: None,
-        });
+        views.push(img.into_view(path.clone(), camera));
     }
 
     let split = llff_split(n, opts.views).map_err(|m| DataError::invalid(root, m))?;

@@ -41,13 +41,11 @@ use serde::Deserialize;
 use super::blender::{Intrinsics, find_image, resolve};
 use super::bounds::{Capture, finish_capture};
 use super::colmap::{model_dir, read_model};
-use super::image_io::{
-    SizeGuard, file_stem, load_grey16, load_mask, read_view_image_downscaled,
-};
+use super::image_io::{SizeGuard, load_grey16, load_mask, read_view_image_downscaled};
 use super::npy::read_npy;
 use super::resample::{resize_area, resize_nearest};
 use super::split::{Split, subset_split};
-use super::{DataError, LoadOptions, Scene, SceneFormat, View};
+use super::{DataError, LoadOptions, Scene, SceneFormat};
 
 /// nerfstudio's default `depth_unit_scale_factor` (millimetres to metres).
 const DEPTH_UNIT_SCALE: f32 = 1e-3;
@@ -228,16 +226,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             .camera(size.0, size.1, c2w)
             .and_then(|c| c.check().map(|()| c))
             .map_err(|m| DataError::NonFinite { path: json.clone(), what: format!("{}: {m}", what()) })?;
-        let mut view = View {
-            name: file_stem(&path),
-            path,
-            camera,
-            image: img.image,
-            mask: None,
-            alpha: img.alpha,
-            depth: None,
-            normal: None,
-        };
+        let mut view = img.into_view(path, camera);
         if let Some(rel) = frame.mask_path.as_deref().filter(|_| opts.load_images) {
             let (p, resample) = aux_file(root, rel, "masks", factor);
             let (w, h, mask) = load_mask(&p)?;
