@@ -117,6 +117,8 @@ fn colmap_text_and_binary_give_the_blender_rays() {
         assert_eq!(scene.format, SceneFormat::Colmap);
         assert!(scene.ndc.is_none(), "an orbit is object-centric");
         assert_same_rays(&blender, &scene, 1e-5);
+        // RGBA pictures: composited over the load background, which the scene records.
+        assert_eq!(scene.background, Some([1.0; 3]));
         // Views sorted by name (colliding stems named by their folder), split as LLFF
         // (every 8th a test view).
         assert_eq!((scene.views[0].name.as_str(), scene.views[8].name.as_str()), ("test_r_000", "train_r_000"));

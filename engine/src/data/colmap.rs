@@ -17,6 +17,8 @@
 //!   `z` columns negated into the OpenGL frame. The world frame is COLMAP's own.
 //! * Points: `points3D` positions bound the scene ([`super::bounds`]: forward-facing
 //!   captures become LLFF-style NDC scenes, others keep COLMAP's frame and units).
+//! * Pictures with alpha are composited over [`LoadOptions::background`] (white by
+//!   default), recorded as `Scene::background`, as the Blender reader does.
 //! * Views: sorted by image name; split as LLFF ([`super::llff_split`]: every 8th image
 //!   is a test image, `k` training views spread over the rest), the rule nerfstudio's
 //!   `interval` mode and LLFF share.
@@ -418,6 +420,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     let mut images = model.images.clone();
     images.sort_by(|a, b| a.name.cmp(&b.name));
     let mut guard = SizeGuard::default();
+    let mut any_alpha = false;
     let mut views = Vec::with_capacity(images.len());
     for im in &images {
         let what = || format!("image {} ({}) of {}", im.id, im.name, source.display());
@@ -428,13 +431,17 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         if !path.is_file() {
             return Err(DataError::MissingImage { path, pose: what() });
         }
-        let img = read_view_image_downscaled(&path, resample, opts.load_images, [0.0; 3], &mut guard)?;
+        let img = read_view_image_downscaled(&path, resample, opts.load_images, opts.background, &mut guard)?;
+        any_alpha |= img.info.has_alpha;
         let c2w = colmap_c2w(im.qvec, im.tvec).map_err(|m| DataError::NonFinite { path: source.clone(), what: format!("{}: {m}", what()) })?;
         let camera = camera_of(camera, img.info.width, img.info.height, c2w.as_mat4())
             .map_err(|m| DataError::invalid(&source, format!("{}: {m}", what())))?;
         views.push(img.into_view(path, camera));
     }
     let split = llff_split(views.len(), opts.views).map_err(|m| DataError::invalid(root, m))?;
-    let capture = Capture { views, split, points: model.points, near_far: [None; 2], aabb: None, background: None };
+    // RGBA pictures are composited over the load background, which the scene records
+    // (training re-composites them over random backgrounds from it).
+    let background = any_alpha.then_some(opts.background);
+    let capture = Capture { views, split, points: model.points, near_far: [None; 2], aabb: None, background };
     finish_capture(root, SceneFormat::Colmap, &source, capture)
 }
