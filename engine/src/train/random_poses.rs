@@ -35,6 +35,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
+use crate::data::camera::{facing_one_way, focus_point};
 use crate::data::{Camera, Scene};
 use crate::layout::GpuRay;
 
@@ -59,10 +60,8 @@ impl PoseKind {
         if scene.is_dtu() {
             return PoseKind::Box;
         }
-        let axes: Vec<Vec3> = scene.train_views().map(|v| v.camera.forward()).collect();
-        let mean = axes.iter().copied().sum::<Vec3>().normalize_or_zero();
-        let facing_one_way = axes.iter().all(|a| a.dot(mean) >= 45f32.to_radians().cos());
-        if facing_one_way { PoseKind::Box } else { PoseKind::Sphere }
+        let cams: Vec<Camera> = scene.train_views().map(|v| v.camera).collect();
+        if facing_one_way(&cams, 45.0) { PoseKind::Box } else { PoseKind::Sphere }
     }
 }
 
@@ -89,20 +88,6 @@ pub fn look_at(position: Vec3, target: Vec3, up: Vec3) -> Mat4 {
     let x = x.normalize();
     let y = z.cross(x);
     Mat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), position.extend(1.0))
-}
-
-/// The point nearest (least squares) to all cameras' optical axes (RegNeRF's
-/// `focus_pt_fn`); the mean camera position when the axes are (nearly) parallel.
-pub fn focus_point(cameras: &[Camera]) -> Vec3 {
-    let (mut a, mut b) = (glam::DMat3::ZERO, glam::DVec3::ZERO);
-    for c in cameras {
-        let d = c.forward().as_dvec3();
-        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += m;
-        b += m * c.origin().as_dvec3();
-    }
-    let mean = cameras.iter().map(|c| c.origin()).sum::<Vec3>() / cameras.len().max(1) as f32;
-    if a.determinant().abs() < 1e-9 { mean } else { (a.inverse() * b).as_vec3() }
 }
 
 /// Mean position, rotation of the average pose (RegNeRF's `poses_avg`: mean axis and
@@ -295,7 +280,7 @@ mod tests {
     fn look_at_and_focus_point() {
         let m = look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y);
         assert!((m.z_axis.truncate() - Vec3::Z).length() < 1e-6 && (m.y_axis.truncate() - Vec3::Y).length() < 1e-6);
-        let cam = |p: Vec3| Camera { width: 8, height: 8, fx: 8.0, fy: 8.0, cx: 4.0, cy: 4.0, c2w: look_at(p, Vec3::new(1.0, 2.0, 3.0), Vec3::Z) };
+        let cam = |p: Vec3| Camera { width: 8, height: 8, fx: 8.0, fy: 8.0, cx: 4.0, cy: 4.0, c2w: look_at(p, Vec3::new(1.0, 2.0, 3.0), Vec3::Z), lens: Default::default() };
         let f = focus_point(&[cam(Vec3::new(5.0, 0.0, 3.0)), cam(Vec3::new(0.0, 6.0, 4.0)), cam(Vec3::new(-3.0, -2.0, 6.0))]);
         assert!((f - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-3, "{f}");
         let mut rng = SplitMix64::mixed(1);

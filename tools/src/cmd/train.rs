@@ -95,8 +95,8 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     if args.input.views.is_some() {
         config.scene.views = args.input.views;
     }
-    if let Some(f) = args.input.llff_factor {
-        config.scene.llff_factor = f;
+    if args.input.llff_factor.is_some() {
+        config.scene.llff_factor = args.input.llff_factor;
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
