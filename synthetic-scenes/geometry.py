@@ -65,8 +65,9 @@ def merge(meshes: list[Mesh]) -> Mesh:
     )
 
 
-def write_ply(path: str | Path, mesh: Mesh) -> None:
-    """Binary little-endian PLY with x y z [nx ny nz] [u v] and uchar/int faces."""
+def write_ply(path: str | Path, mesh: Mesh, compact: bool = False) -> None:
+    """Binary little-endian PLY with x y z [nx ny nz] [u v] and uchar/int faces
+    (`compact`: uchar/ushort faces when the indices fit, for committed files)."""
     n, m = len(mesh.V), len(mesh.F)
     cols = [mesh.V]
     props = ["x", "y", "z"]
@@ -78,13 +79,48 @@ def write_ply(path: str | Path, mesh: Mesh) -> None:
         props += ["u", "v"]
     head = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     head += [f"property float {p}" for p in props]
-    head += [f"element face {m}", "property list uchar int vertex_indices", "end_header"]
+    short = compact and n <= 65536
+    head += [f"element face {m}", f"property list uchar {'ushort' if short else 'int'} vertex_indices", "end_header"]
     vdata = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4").tobytes()
-    fdt = np.dtype([("n", "u1"), ("i", "<i4", (3,))])
+    fdt = np.dtype([("n", "u1"), ("i", "<u2" if short else "<i4", (3,))])
     faces = np.zeros(m, fdt)
     faces["n"] = 3
     faces["i"] = mesh.F
     Path(path).write_bytes(("\n".join(head) + "\n").encode() + vdata + faces.tobytes())
+
+
+def icosphere(center, radius: float, subdiv: int = 3) -> Mesh:
+    """Sphere as an icosahedron subdivided `subdiv` times (20 * 4^subdiv triangles),
+    vertices on the sphere: the mesh of an analytic sphere in the ground-truth mesh.
+    Its chords stay within radius * (1 - cos(edge / 2)) of the sphere (0.24 % of the
+    radius at subdiv 3, 1280 triangles)."""
+    t = (1 + math.sqrt(5)) / 2
+    V = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
+         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    F = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
+         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+         (8, 6, 7), (9, 8, 1)]
+    V = [np.array(v, float) / np.linalg.norm(v) for v in V]
+    for _ in range(subdiv):
+        mid: dict = {}
+
+        def m(a, b):
+            k = (min(a, b), max(a, b))
+            if k not in mid:
+                p = V[a] + V[b]
+                V.append(p / np.linalg.norm(p))
+                mid[k] = len(V) - 1
+            return mid[k]
+
+        F = [f for a, b, c in F for f in ((a, m(a, b), m(c, a)), (b, m(b, c), m(a, b)), (c, m(c, a), m(b, c)),
+                                           (m(a, b), m(b, c), m(c, a)))]
+    return Mesh(np.asarray(center, float) + radius * np.array(V), np.array(F, np.int32))
+
+
+def merge_surfaces(meshes: list[Mesh]) -> Mesh:
+    """Concatenates positions and triangles only (no normals or UVs): the shapes of a
+    scene as one surface."""
+    return merge([Mesh(m.V, m.F) for m in meshes])
 
 
 def translate(t) -> np.ndarray:

@@ -312,6 +312,12 @@ def compare_scenes(a_root: Path, b_root: Path) -> list[Result]:
         worst_mad = max(worst_mad, float(np.mean(np.abs(d))))
     add("rgb", worst_psnr >= 40 and worst_mad <= 1 / 255,
         f"worst PSNR {worst_psnr:.1f} dB, worst mean abs diff {worst_mad * 255:.3f}/255")
+    ma, mb = Path(a_root) / "gt_mesh.ply", Path(b_root) / "gt_mesh.ply"
+    if not (ma.is_file() and mb.is_file()):
+        add("gt mesh", False, f"gt_mesh.ply missing in {ma.parent if not ma.is_file() else mb.parent}")
+    else:
+        same_mesh = ma.read_bytes() == mb.read_bytes()
+        add("gt mesh", same_mesh, f"{ma.stat().st_size} vs {mb.stat().st_size} bytes, " + ("identical" if same_mesh else "differ"))
     return out
 
 

@@ -43,7 +43,7 @@ sys.path.insert(0, str(HERE))
 import gtcheck  # noqa: E402
 import gtio  # noqa: E402
 import scenes as scene_defs  # noqa: E402
-from geometry import write_ply  # noqa: E402
+from geometry import icosphere, merge_surfaces, write_ply  # noqa: E402
 
 MITSUBA_VERSION = "3.9.1"
 VARIANT = "scalar_rgb"
@@ -121,6 +121,12 @@ def build_mitsuba_scene(spec: scene_defs.SceneSpec, shapes: list[scene_defs.Shap
         sd["bsdf"] = _material(mi, s)
         d[f"{i:02d}_{s.name}"] = sd
     return mi.load_dict(d)
+
+
+def gt_mesh(shapes: list[scene_defs.Shape]):
+    """Every shape of the scene as one world-space triangle mesh (analytic spheres as
+    icospheres): the ground truth of mesh metrics (`gt_mesh.ply`)."""
+    return merge_surfaces([icosphere(s.sphere[0], s.sphere[1]) if s.sphere is not None else s.mesh for s in shapes])
 
 
 def check_inside_aabb(spec: scene_defs.SceneSpec, shapes: list[scene_defs.Shape]) -> None:
@@ -272,6 +278,7 @@ def render_scene(name, preset_name, preset, out_root: Path, progress, state) -> 
         shutil.rmtree(work)
     (work / "train").mkdir(parents=True)
     (work / "test").mkdir()
+    write_ply(work / "gt_mesh.ply", gt_mesh(shapes), compact=True)
     stats = {"depth_min": math.inf, "depth_max": 0.0}
     t0 = time.time()
     with tempfile.TemporaryDirectory(prefix=f"edgenerf-{name}-") as tmp:
@@ -358,6 +365,22 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_gt_mesh(args) -> int:
+    """Writes only gt_mesh.ply into already rendered scene folders (no Mitsuba)."""
+    out = Path(args.out) if args.out else DEFAULT_OUT[args.preset]
+    for name in args.scene or list(scene_defs.SCENES):
+        folder = out / name
+        if not (folder / "transforms_train.json").is_file():
+            raise SystemExit(f"{folder} holds no rendered scene (no transforms_train.json); render it first")
+        shapes = scene_defs.SCENES[name].build()
+        check_inside_aabb(scene_defs.SCENES[name], shapes)
+        tmp = folder / "gt_mesh.ply.partial"
+        write_ply(tmp, gt_mesh(shapes), compact=True)
+        tmp.rename(folder / "gt_mesh.ply")
+        print(f"{name}: wrote {folder / 'gt_mesh.ply'} ({(folder / 'gt_mesh.ply').stat().st_size} bytes)", flush=True)
+    return 0
+
+
 def cmd_check(args) -> int:
     committed = Path(args.check)
     names = args.scene or CHECK_DEFAULT_SCENES
@@ -406,6 +429,8 @@ def main(argv=None) -> int:
                          "DIR/<scene>, and run the consistency checks on it and on every scene in DIR; "
                          "exit 1 on any failure")
     ap.add_argument("--list", action="store_true", help="list the scenes and exit")
+    ap.add_argument("--gt-mesh-only", action="store_true",
+                    help="write only each scene's gt_mesh.ply into its existing folder under --out (no rendering)")
     args = ap.parse_args(argv)
     if args.list:
         for s in scene_defs.SCENES.values():
@@ -413,6 +438,8 @@ def main(argv=None) -> int:
         return 0
     if args.check:
         return cmd_check(args)
+    if args.gt_mesh_only:
+        return cmd_gt_mesh(args)
     return cmd_render(args)
 
 

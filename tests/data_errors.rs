@@ -5,7 +5,7 @@ mod common;
 use std::path::Path;
 
 use edgenerf::data::npy::write_npy_f64;
-use edgenerf::data::{DataError, LoadOptions, Scene};
+use edgenerf::data::{DataError, Lens, LoadOptions, Scene};
 
 fn write_png(path: &Path, w: u32, h: u32) {
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -104,7 +104,7 @@ fn missing_image_for_a_pose() {
         let e = Scene::load(
             dir.path(),
             &LoadOptions {
-                llff_factor: 4,
+                llff_factor: Some(4),
                 ..Default::default()
             },
         )
@@ -321,25 +321,31 @@ fn degenerate_cameras_are_refused() {
     }
 }
 
-/// nerfstudio keys that change the rays are honoured (per-frame intrinsics) or refused
-/// (lens models and distortion); they were dropped without a word.
+/// nerfstudio keys that change the rays are honoured (per-frame intrinsics, the OPENCV
+/// and OPENCV_FISHEYE lenses) or refused (other lens models); they were dropped without
+/// a word.
 #[test]
 fn nerfstudio_camera_keys_are_honoured_or_refused() {
     for (top, want) in [
-        (serde_json::json!({"camera_model": "OPENCV_FISHEYE"}), "camera_model \"OPENCV_FISHEYE\""),
-        (serde_json::json!({"camera_model": "EQUIRECTANGULAR"}), "EQUIRECTANGULAR"),
-        (serde_json::json!({"camera_model": "OPENCV", "k1": 0.1}), "k1 = 0.1"),
-        (serde_json::json!({"k4": -0.01}), "k4"),
-        (serde_json::json!({"p1": 0.002}), "p1"),
-        (serde_json::json!({"p2": 0.002}), "p2"),
+        (serde_json::json!({"camera_model": "EQUIRECTANGULAR"}), "camera_model \"EQUIRECTANGULAR\" is not supported"),
+        (serde_json::json!({"camera_model": "FISHEYE624"}), "FISHEYE624"),
+        (serde_json::json!({"camera_model": "OPENCV_FISHEYE", "p1": 0.002}), "no tangential terms"),
         (serde_json::json!({"is_fisheye": true}), "is_fisheye"),
+        (serde_json::json!({"camera_model": "OPENCV", "k1": 1e39}), "not finite"),
     ] {
         let msg = blender_err(top.clone(), serde_json::json!({}));
-        assert!(msg.contains(want) && msg.contains("undistort"), "{top}: {msg}");
+        assert!(msg.contains(want) && msg.contains("frame 0"), "{top}: {msg}");
     }
-    // Distortion on one frame only.
-    let msg = blender_err(serde_json::json!({}), serde_json::json!({"k2": 0.05}));
-    assert!(msg.contains("k2") && msg.contains("frame 0"), "{msg}");
+    // Distortion, at the top level or on one frame, becomes the camera's lens.
+    let dir = tempfile::tempdir().unwrap();
+    blender_scene(dir.path(), 2, serde_json::json!({"camera_model": "OPENCV", "fl_x": 40.0, "k1": 0.1, "p2": 0.002}), serde_json::json!({"k2": 0.05}));
+    let scene = Scene::load(dir.path(), &LoadOptions::default()).unwrap();
+    assert_eq!(scene.views[0].camera.lens, Lens::OpenCv { k: [0.1, 0.05, 0.0, 0.0], p: [0.0, 0.002] });
+    assert_eq!(scene.views[1].camera.lens, Lens::OpenCv { k: [0.1, 0.0, 0.0, 0.0], p: [0.0, 0.002] });
+    let dir = tempfile::tempdir().unwrap();
+    blender_scene(dir.path(), 1, serde_json::json!({"camera_model": "OPENCV_FISHEYE", "fl_x": 40.0, "k1": 0.1, "k4": -0.01}), serde_json::json!({}));
+    let scene = Scene::load(dir.path(), &LoadOptions::default()).unwrap();
+    assert_eq!(scene.views[0].camera.lens, Lens::Fisheye { k: [0.1, 0.0, 0.0, -0.01] });
 
     // Pinhole models and zero distortion load; per-frame intrinsics win over the top level.
     let dir = tempfile::tempdir().unwrap();
@@ -413,7 +419,7 @@ fn llff_without_the_default_image_folder_says_which_factor_to_pass() {
         has(&msg, &dir.path().join("images_8")) && msg.contains("images_4 (--llff-factor 4)") && !msg.contains("LoadOptions"),
         "{msg}"
     );
-    let scene = Scene::load(dir.path(), &LoadOptions { llff_factor: 4, ..Default::default() }).unwrap();
+    let scene = Scene::load(dir.path(), &LoadOptions { llff_factor: Some(4), ..Default::default() }).unwrap();
     assert_eq!(scene.views.len(), 3);
     // A pose whose rotation is scaled names its row.
     let mut rows = llff_scene(dir.path(), 3);

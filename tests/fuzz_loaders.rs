@@ -2,7 +2,9 @@
 //! result, never a panic, an abort or a hang.
 //!
 //! Targets, one test each: `npy` (`parse_npy`), `npz` (`Npz::read`), `transforms` (a
-//! Blender / nerfstudio scene's `transforms_train.json` through `Scene::load`), `llff`
+//! Blender / nerfstudio scene's `transforms_train.json` through `Scene::load`),
+//! `nerfstudio` (a single `transforms.json` with lenses, masks, depth and a COLMAP model
+//! beside it), `colmap` (each file of a binary or text sparse model), `llff`
 //! (the values of `poses_bounds.npy`), `dtu` (the matrices of `cameras.npz`), `exr`
 //! (depth and normal ground truth), `png` (images, masks, headers), `checkpoint`
 //! (`Checkpoint::load`), `edge_maps` (external edge maps and cached masks) and `config`
@@ -489,6 +491,55 @@ fn fuzz_transforms() {
     });
 }
 
+/// A nerfstudio scene of two 8x6 frames (mask, 16-bit depth) beside a COLMAP model in
+/// colmap/sparse/0; returns the seeds of its transforms.json (orbit with distortion,
+/// fisheye with an explicit split, forward-facing with `near`).
+fn nerfstudio_fixture(root: &Path) -> Vec<serde_json::Value> {
+    use serde_json::json;
+    for i in 0..2 {
+        std::fs::create_dir_all(root.join("images")).unwrap();
+        std::fs::write(root.join(format!("images/f{i}.png")), rgb_png(8, 6)).unwrap();
+        std::fs::write(root.join(format!("m{i}.png")), &png_seeds()[2]).unwrap();
+        std::fs::write(root.join(format!("d{i}.png")), &png_seeds()[3]).unwrap();
+    }
+    let (cams, imgs, points) = colmap_seed_model();
+    common::colmap::write_binary(&root.join("colmap/sparse/0"), &cams, &imgs, &points);
+    let frame = |i: usize, m: serde_json::Value| json!({"file_path": format!("images/f{i}.png"), "transform_matrix": m,
+                                                       "mask_path": format!("m{i}.png"), "depth_file_path": format!("d{i}.png")});
+    let front = json!([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+    let side = json!([[0.0, 0.0, 1.0, 4.0], [0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+    let orbit = json!({"camera_model": "OPENCV", "fl_x": 10.0, "fl_y": 10.5, "cx": 4.0, "cy": 3.0, "w": 8, "h": 6,
+                       "k1": -0.1, "k2": 0.01, "p1": 0.001, "p2": 0.0, "frames": [frame(0, front.clone()), frame(1, side)],
+                       "applied_transform": [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0]]});
+    let fisheye = json!({"camera_model": "OPENCV_FISHEYE", "fl_x": 6.0, "k1": 0.02, "k4": -0.001,
+                         "train_filenames": ["images/f0.png"], "test_filenames": ["images/f1.png"],
+                         "frames": [frame(0, front.clone()), frame(1, json!([[0.0, 0.0, -1.0, -4.0], [0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]))]});
+    let forward = json!({"fl_x": 10.0, "near": 1.0, "far": 9.0, "frames": [frame(0, front.clone()), frame(1, front)]});
+    vec![orbit, fisheye, forward]
+}
+
+/// A two-camera COLMAP model (OPENCV and OPENCV_FISHEYE, 8x6) looking at the origin from
+/// +z and +x, with three points.
+fn colmap_seed_model() -> (Vec<common::colmap::Cam>, Vec<common::colmap::Img>, Vec<glam::DVec3>) {
+    use common::colmap::{Cam, Img, pose_of};
+    use glam::{DMat4, DVec4};
+    let cams = vec![
+        Cam { id: 1, model: "OPENCV", model_id: 4, width: 8, height: 6, params: vec![10.0, 10.0, 4.0, 3.0, -0.1, 0.01, 0.001, 0.0] },
+        Cam { id: 2, model: "OPENCV_FISHEYE", model_id: 5, width: 8, height: 6, params: vec![6.0, 6.0, 4.0, 3.0, 0.02, 0.0, 0.0, -0.001] },
+    ];
+    let front = DMat4::from_cols(DVec4::X, DVec4::Y, DVec4::Z, DVec4::new(0.0, 0.0, 4.0, 1.0));
+    let side = DMat4::from_cols(DVec4::new(0.0, 0.0, -1.0, 0.0), DVec4::Y, DVec4::X, DVec4::new(4.0, 0.0, 0.0, 1.0));
+    let imgs = [front, side]
+        .iter()
+        .enumerate()
+        .map(|(i, &c2w)| {
+            let (q, t) = pose_of(c2w);
+            Img { id: i as u32 + 1, q, t, camera: i as u32 + 1, name: format!("f{i}.png") }
+        })
+        .collect();
+    (cams, imgs, vec![glam::DVec3::ZERO, glam::DVec3::new(0.3, 0.2, -0.1), glam::DVec3::new(-0.2, 0.1, 0.3)])
+}
+
 /// Values a pose entry is replaced by.
 fn odd_f64() -> impl Strategy<Value = f64> {
     prop_oneof![
@@ -552,6 +603,58 @@ fn fuzz_dtu() {
         let arrays: Vec<(&str, &[usize], &[f64])> = m.iter().map(|(n, d)| (n.as_str(), &[4usize, 4][..], d.as_slice())).collect();
         write_npz_f64(&path, &arrays).unwrap();
         let opts = LoadOptions { load_images: *images, views: Some(3), ..Default::default() };
+        if let Ok(scene) = Scene::load(dir.path(), &opts) {
+            check_scene(&scene);
+        }
+    });
+}
+
+#[test]
+fn fuzz_nerfstudio() {
+    let dir = tempfile::tempdir().unwrap();
+    let seeds = nerfstudio_fixture(dir.path());
+    let json = dir.path().join("transforms.json");
+    fuzz("nerfstudio", (json_input(seeds.len()), any::<bool>()), |(input, images)| {
+        std::fs::write(&json, input.build(&seeds)).unwrap();
+        let opts = LoadOptions { load_images: *images, ..Default::default() };
+        if let Ok(scene) = Scene::load(dir.path(), &opts) {
+            check_scene(&scene);
+        }
+    });
+}
+
+/// The six files of a COLMAP model (binary, then text), one mutated per case, the
+/// others valid.
+#[test]
+fn fuzz_colmap() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("images")).unwrap();
+    for i in 0..2 {
+        std::fs::write(dir.path().join(format!("images/f{i}.png")), rgb_png(8, 6)).unwrap();
+    }
+    let (cams, imgs, points) = colmap_seed_model();
+    let text = dir.path().join("text");
+    common::colmap::write_text(&text, &cams, &imgs, &points);
+    let (c, i, p) = common::colmap::binary_bytes(&cams, &imgs, &points);
+    let names = ["cameras.bin", "images.bin", "points3D.bin", "cameras.txt", "images.txt", "points3D.txt"];
+    let mut seeds = vec![c, i, p];
+    seeds.extend(names[3..].iter().map(|n| std::fs::read(text.join(n)).unwrap()));
+    let model = dir.path().join("sparse/0");
+    std::fs::create_dir_all(&model).unwrap();
+    fuzz("colmap", (bytes_input(seeds.len()), 0..seeds.len(), any::<bool>()), |(input, pick, images)| {
+        let file = match input {
+            Bytes::Mutated { seed, .. } => *seed,
+            Bytes::Random(_) => *pick,
+        };
+        let kind = if file < 3 { 0..3 } else { 3..6 };
+        for n in names {
+            let _ = std::fs::remove_file(model.join(n));
+        }
+        for k in kind {
+            let bytes = if k == file { input.build(&seeds) } else { seeds[k].clone() };
+            std::fs::write(model.join(names[k]), bytes).unwrap();
+        }
+        let opts = LoadOptions { load_images: *images, ..Default::default() };
         if let Ok(scene) = Scene::load(dir.path(), &opts) {
             check_scene(&scene);
         }

@@ -33,10 +33,11 @@ const RULES: &[(&str, &[&str], &[&str])] = &[
     ("sampler", &["gpu", "layout"], &["rng"]),
     ("render", &["gpu", "rng", "layout"], &[]),
     ("loss", &["gpu", "layout"], &["rng", "field", "render"]),
-    ("metrics", &["data", "edges", "viz"], &[]),
+    ("mesh", &["rng"], &[]),
+    ("metrics", &["data", "edges", "viz", "mesh"], &[]),
     (
         "train",
-        &["gpu", "rng", "data", "edges", "layout", "optim", "viz", "field", "sampler", "render", "loss", "metrics"],
+        &["gpu", "rng", "data", "edges", "layout", "optim", "viz", "field", "sampler", "render", "loss", "metrics", "mesh"],
         &[],
     ),
 ];

@@ -178,6 +178,42 @@ dtu() { # dtu NAME [variant]: 49 views of 128x128 (pixelNeRF layout)
     for i in $(seq 0 48); do cp "$creases/train/r_000.png" "$1/image/$(printf %06d "$i").png"; done
     python3 npy_tool.py dtu "$1" 49 "${2:-}"
 }
+colmap() { # colmap NAME txt|bin: creases' train views as a COLMAP model (PINHOLE,
+    # points on creases' box), text in NAME/sparse/0 or binary in NAME/sparse
+    rm -rf "$1"; mkdir -p "$1/images"
+    cp "$creases"/train/r_00[0-7].png "$1/images/"
+    python3 - "$creases" "$1" "$2" <<'PY'
+import json, math, os, struct, sys
+src, r, kind = sys.argv[1:]
+t = json.load(open(os.path.join(src, "transforms_train.json")))
+imgs = []
+for i, f in enumerate(t["frames"][:8]):
+    m = f["transform_matrix"]
+    rc = [[m[a][0], -m[a][1], -m[a][2]] for a in range(3)]          # OpenGL -> OpenCV axes
+    w = [[rc[b][a] for b in range(3)] for a in range(3)]            # w2c rotation = R^T
+    tv = [-sum(w[a][b] * m[b][3] for b in range(3)) for a in range(3)]
+    qw = math.sqrt(max(0.0, 1 + w[0][0] + w[1][1] + w[2][2])) / 2
+    q = [qw] + [math.copysign(math.sqrt(max(0.0, 1 + 2 * w[a][a] - (w[0][0] + w[1][1] + w[2][2]))) / 2, s)
+                for a, s in ((0, w[2][1] - w[1][2]), (1, w[0][2] - w[2][0]), (2, w[1][0] - w[0][1]))]
+    imgs.append((i + 1, q, tv, os.path.basename(f["file_path"])))
+pts = [(x, y, z) for x in (-1.3, 1.3) for y in (-1.3, 1.3) for z in (-0.1, 1.0)] + [(0.0, 0.0, 0.45)]
+f, c = t["fl_x"], t["cx"]
+if kind == "txt":
+    d = os.path.join(r, "sparse", "0"); os.makedirs(d)
+    open(os.path.join(d, "cameras.txt"), "w").write(f"1 PINHOLE 128 128 {f} {f} {c} {c}\n")
+    open(os.path.join(d, "images.txt"), "w").write("".join(f"{i} {' '.join(map(str, q))} {' '.join(map(str, tv))} 1 {n}\n\n" for i, q, tv, n in imgs))
+    open(os.path.join(d, "points3D.txt"), "w").write("".join(f"{i + 1} {x} {y} {z} 9 9 9 0.5 1 0\n" for i, (x, y, z) in enumerate(pts)))
+else:
+    d = os.path.join(r, "sparse"); os.makedirs(d)
+    open(os.path.join(d, "cameras.bin"), "wb").write(struct.pack("<QiiQQ4d", 1, 1, 1, 128, 128, f, f, c, c))
+    b = struct.pack("<Q", len(imgs))
+    for i, q, tv, n in imgs:
+        b += struct.pack("<i7di", i, *q, *tv, 1) + n.encode() + b"\0" + struct.pack("<Q", 0)
+    open(os.path.join(d, "images.bin"), "wb").write(b)
+    b = struct.pack("<Q", len(pts)) + b"".join(struct.pack("<Q3d3BdQ", i + 1, *p, 9, 9, 9, 0.5, 0) for i, p in enumerate(pts))
+    open(os.path.join(d, "points3D.bin"), "wb").write(b)
+PY
+}
 config() { printf '%b' "$2" >"$1"; } # config FILE TEXT
 
 # ---------------------------------------------------------------------------- running
@@ -267,12 +303,14 @@ blender b-bottom "t['frames'][0]['transform_matrix'][3] = [0, 0, 0, 0]"
 run_case error "bottom row" "blender: bottom row 0 0 0 0" -- "$bin" info b-bottom --no-gpu
 blender b-nan "d = t; t = None; d['frames'][0]['transform_matrix'][0][0] = float('nan'); open(p, 'w').write(json.dumps(d))"
 run_case error "bad JSON" "blender: NaN in a transform_matrix" -- "$bin" info b-nan --no-gpu
-blender b-fisheye "t['camera_model'] = 'OPENCV_FISHEYE'"
-run_case error "OPENCV_FISHEYE" "nerfstudio: camera_model OPENCV_FISHEYE" -- "$bin" info b-fisheye --no-gpu
+blender b-fisheye "t['camera_model'] = 'OPENCV_FISHEYE'; t['k1'] = 0.05"
+run_case ok "lens        OPENCV_FISHEYE" "nerfstudio: camera_model OPENCV_FISHEYE (valid: distorted rays)" -- "$bin" info b-fisheye --no-gpu
 blender b-k1 "t['camera_model'] = 'OPENCV'; t['k1'] = 0.1"
-run_case error "k1" "nerfstudio: distortion k1 = 0.1" -- "$bin" info b-k1 --no-gpu
-blender b-p1 "t['frames'][2]['p1'] = 0.01"
-run_case error "p1" "nerfstudio: distortion p1 on one frame" -- "$bin" info b-p1 --no-gpu
+run_case ok "lens        OPENCV k1..k4 [0.1" "nerfstudio: distortion k1 = 0.1 (valid: distorted rays)" -- "$bin" info b-k1 --no-gpu
+blender b-equirect "t['camera_model'] = 'EQUIRECTANGULAR'"
+run_case error "EQUIRECTANGULAR\" is not supported" "nerfstudio: camera_model EQUIRECTANGULAR" -- "$bin" info b-equirect --no-gpu
+blender b-p1 "t['camera_model'] = 'OPENCV_FISHEYE'; t['frames'][2]['p1'] = 0.01"
+run_case error "no tangential terms" "nerfstudio: p1 on one frame of a fisheye" -- "$bin" info b-p1 --no-gpu
 blender b-isfish "t['is_fisheye'] = True"
 run_case error "is_fisheye" "instant-ngp: is_fisheye true" -- "$bin" info b-isfish --no-gpu
 blender b-perframe "t['frames'][0]['fl_x'] = 100.0"
@@ -336,9 +374,39 @@ llff l-factor "" images_4
 run_case error "--llff-factor 4" "llff: no images_8 (images_4 present)" -- "$bin" info l-factor --no-gpu
 run_case ok "3 of 128x128" "llff: --llff-factor 4 reads images_4 (valid)" -- "$bin" info l-factor --llff-factor 4 --no-gpu
 run_case error "--llff-factor" "llff: --llff-factor 0" -- "$bin" info l-factor --llff-factor 0 --no-gpu
+llff l-full "" images
+run_case ok "3 of 16x16" "llff: no images_8, images/ downsampled by 8 on load (valid)" -- "$bin" info l-full --no-gpu
 llff l-count
 rm l-count/images_8/img2.png
 run_case error "2 images for 3 cameras" "llff: 2 images for 3 poses" -- "$bin" info l-count --no-gpu
+
+# COLMAP models and nerfstudio transforms.json (issue 18)
+colmap c-txt txt
+run_case ok "colmap (sparse model)" "colmap: a text model in sparse/0 (valid)" -- "$bin" info c-txt --no-gpu
+colmap c-bin bin
+run_case ok "aabb        [-1.43, -1.43, -0.155]" "colmap: a binary model in sparse/ (valid)" -- "$bin" info c-bin --no-gpu
+colmap c-nocam bin
+rm c-nocam/sparse/cameras.bin
+run_case error "cameras.bin or cameras.txt" "colmap: no cameras.bin" -- "$bin" info c-nocam --no-gpu
+colmap c-trunc bin
+python3 -c "import sys; p = sys.argv[1]; b = open(p, 'rb').read(); open(p, 'wb').write(b[:len(b) // 2])" c-trunc/sparse/images.bin
+run_case error "truncated" "colmap: images.bin cut in half" -- "$bin" info c-trunc --no-gpu
+colmap c-model txt
+sed -i 's/ PINHOLE / FISHEYE624 /' c-model/sparse/0/cameras.txt
+run_case error "unknown camera model \"FISHEYE624\"" "colmap: unknown camera model" -- "$bin" info c-model --no-gpu
+colmap c-full txt
+sed -i 's/ PINHOLE 128 128 \([^ ]*\) \([^ ]*\) \([^ ]*\) \([^ ]*\)$/ FULL_OPENCV 128 128 \1 \2 \3 \4 0.1 0 0 0 0 0 0 0/' c-full/sparse/0/cameras.txt
+run_case error "image_undistorter" "colmap: FULL_OPENCV (not supported)" -- "$bin" info c-full --no-gpu
+colmap c-noimg txt
+rm c-noimg/images/r_001.png
+run_case error "r_001.png" "colmap: an image of the model is missing" -- "$bin" info c-noimg --no-gpu
+blender n-both
+echo '{"frames": []}' >n-both/transforms.json
+run_case error "ambiguous" "nerfstudio: transforms.json beside transforms_train.json" -- "$bin" info n-both --no-gpu
+blender n-ns "os.rename(p, os.path.join(r, 'transforms.json')); t = None"
+run_case ok "nerfstudio (transforms.json)" "nerfstudio: creases' frames as one transforms.json (valid)" -- "$bin" info n-ns --no-gpu
+blender n-ff "os.remove(p); p = os.path.join(r, 'transforms.json'); t['frames'] = [dict(f, transform_matrix=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]) for f in t['frames']]; [t.pop(k) for k in ('near', 'far', 'aabb')]"
+run_case error "forward-facing" "nerfstudio: cameras facing one way, no points, no near" -- "$bin" info n-ff --no-gpu
 
 # DTU
 dtu d-garbage garbage

@@ -71,7 +71,10 @@ pub struct RayAux {
     /// the renderer's occlusion range, 0 when none is set).
     pub distortion: f32,
     pub occlusion: f32,
-    pub _pad: [u32; 2],
+    /// The ray's orientation penalty `R` ([`crate::render::priors`], unweighted; 0 when the
+    /// field computed no normals).
+    pub orientation: f32,
+    pub _pad: u32,
 }
 
 /// Where the samples of one ray are.

@@ -18,8 +18,10 @@
 //! * [`loss`]: photometric, edge-guided depth/normal and RegNeRF depth-TV losses;
 //! * [`optim`]: Adam, gradient norm and clipping on the GPU, learning-rate schedules;
 //! * [`train`]: configuration, the model, the training step, checkpoints, evaluation;
+//! * [`mesh`]: triangle meshes on the CPU: PLY, marching tetrahedra, surface sampling,
+//!   nearest points, Chamfer distance and F-score;
 //! * [`metrics`]: image and geometry metrics (PSNR, SSIM, LPIPS, depth/normal errors,
-//!   depth boundary error);
+//!   depth boundary error, mesh Chamfer / F-score against a ground-truth mesh);
 //! * [`viz`]: depth, normal and opacity images for people.
 
 pub mod data;
@@ -27,6 +29,7 @@ pub mod edges;
 pub mod field;
 pub mod gpu;
 pub mod loss;
+pub mod mesh;
 pub mod metrics;
 pub mod optim;
 pub mod render;

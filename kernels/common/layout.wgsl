@@ -32,9 +32,9 @@ struct RayOutput {
 struct RayAux {
     background: vec3<f32>,
     n_contrib: u32,
-    // The ray's unweighted distortion D and occlusion O (render/composite.wgsl).
+    // The ray's unweighted distortion D, occlusion O and orientation R (render/composite.wgsl).
     distortion: f32,
     occlusion: f32,
+    orientation: f32,
     _pad0: u32,
-    _pad1: u32,
 }

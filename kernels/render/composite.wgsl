@@ -28,12 +28,15 @@
 // over the same K samples, with m_i = t_i the sample midpoints:
 //   distortion (mip-NeRF 360) D = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 dt_i
 //   occlusion  (FreeNeRF)     O = sum_{i: t_i < occlusion_end} sigma_i dt_i
-// The forward pass stores both per ray in aux. The backward adds
-//   params.distortion * D + params.occlusion * O
+//   orientation (Ref-NeRF)    R = sum_i w_i max(0, <n_i, d_i>)^2
+// The forward pass stores all three per ray in aux. The backward adds
+//   params.distortion * D + params.occlusion * O + params.orientation * R
 // to the ray's loss: dD/dw_i = 2 (m_i W_<i - M_<i + M_>i - m_i W_>i) + 2/3 w_i dt_i
 // (W, M: prefix and suffix sums of w and w m, the suffixes from opacity and depth)
 // enters u_i, and sum_i w_i dD/dw_i = 2 D (D is homogeneous of degree 2 in w) enters
-// total; dO/dsigma_i = dt_i is added to the density gradient directly.
+// total; dO/dsigma_i = dt_i is added to the density gradient directly; dR/dw_i =
+// max(0, <n_i, d_i>)^2 enters u_i and R (degree 1) total, and dR/dn_i =
+// 2 w_i max(0, <n_i, d_i>) d_i the normal gradient.
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
@@ -50,12 +53,12 @@ struct Params {
     t_threshold: f32,
     // Backward: add into the gradient buffers instead of overwriting them.
     accumulate: u32,
-    // Backward: the weights of the distortion and occlusion priors (0: off).
+    // Backward: the weights of the distortion, occlusion and orientation priors (0: off).
     distortion: f32,
     occlusion: f32,
     // Samples with t below this are in the occlusion prior's range.
     occlusion_end: f32,
-    _pad0: u32,
+    orientation: f32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -124,6 +127,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var dist_inter = 0.0;
     var dist_intra = 0.0;
     var occ = 0.0;
+    var orient = 0.0;
     var k = 0u;
     for (; k < range.count; k++) {
         if (T < params.t_threshold) {
@@ -136,7 +140,10 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
         acc_rgb += w * field.xyz;
-        acc_normal += w * normal[s].xyz;
+        let n = normal[s].xyz;
+        acc_normal += w * n;
+        let facing = max(dot(n, smp.dir), 0.0);
+        orient += w * facing * facing;
         dist_inter += w * (smp.t * acc_opacity - acc_depth);
         dist_intra += w * w * smp.dt;
         if (smp.t < params.occlusion_end) {
@@ -155,7 +162,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         }
     }
     rays[r] = RayOutput(acc_rgb + (1.0 - acc_opacity) * bg, acc_opacity, acc_normal, acc_depth);
-    aux[r] = RayAux(bg, k, 2.0 * dist_inter + dist_intra / 3.0, occ, 0u, 0u);
+    aux[r] = RayAux(bg, k, 2.0 * dist_inter + dist_intra / 3.0, occ, orient, 0u);
 }
 
 @compute @workgroup_size(WG_SIZE)
@@ -172,8 +179,9 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let bg = side.background;
     let k_end = min(side.n_contrib, range.count);
     let c_dist = params.distortion;
+    let c_ori = params.orientation;
     let total = dot(g.rgb, fwd.rgb - bg) + g.opacity * fwd.opacity + g.depth * fwd.depth + dot(g.normal, fwd.normal)
-        + c_dist * 2.0 * side.distortion;
+        + c_dist * 2.0 * side.distortion + c_ori * side.orientation;
     let acc = params.accumulate != 0u;
     var T = 1.0;
     var prefix = 0.0;
@@ -188,7 +196,14 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         let trans = exp(-tau);
         let w = T * alpha_of(tau, trans);
         T *= trans;
-        var u = dot(g.rgb, field.xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, normal[s].xyz);
+        let n = normal[s].xyz;
+        var u = dot(g.rgb, field.xyz - bg) + g.opacity + g.depth * smp.t + dot(g.normal, n);
+        var d_n = w * g.normal;
+        if (c_ori != 0.0) {
+            let facing = max(dot(n, smp.dir), 0.0);
+            u += c_ori * facing * facing;
+            d_n += (2.0 * c_ori * w * facing) * smp.dir;
+        }
         if (c_dist != 0.0) {
             let w_after = fwd.opacity - w_before - w;
             let wt_after = fwd.depth - wt_before - w * smp.t;
@@ -202,7 +217,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
             d_sigma += params.occlusion * smp.dt;
         }
         let d_field = vec4<f32>(w * g.rgb, d_sigma);
-        let d_normal = vec4<f32>(w * g.normal, 0.0);
+        let d_normal = vec4<f32>(d_n, 0.0);
         if (acc) {
             grad_rgb_density[s] += d_field;
             grad_normal[s] += d_normal;

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 
+pub mod colmap;
 mod dtu_arc;
 
 /// The real-data root, or `None` (after a note on stderr) when it is not available.

@@ -5,6 +5,7 @@ mod cmd;
 mod output;
 mod plot;
 mod report;
+mod slurm;
 mod suite;
 mod video;
 
@@ -40,6 +41,10 @@ enum Command {
     /// Training speed on this adapter: steps/s and time per stage of a step (demo and
     /// sparse-view preset, or a scene and config of your own), as a table and JSON.
     Speed(cmd::speed::Args),
+    /// Geometry of a trained run as PLY: the density field's surface (`mesh`) or
+    /// rendered depth as points (`points`).
+    #[command(subcommand)]
+    Export(cmd::export::Command),
     /// Edge masks of a scene's views (what the edge-guided losses see), with overlays.
     Edges(cmd::edges::Args),
     /// Synthetic ground-truth scenes (Mitsuba): render them.
@@ -78,6 +83,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(args) => cmd::eval::run(args, &gpu_opts),
         Command::Bench(args) => cmd::bench::run(args, cli.adapter.as_deref()),
         Command::Speed(args) => cmd::speed::run(args, &gpu_opts),
+        Command::Export(c) => cmd::export::run(c, &gpu_opts),
         Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
     }

@@ -36,6 +36,9 @@ pub struct Row {
     pub config_hash: Option<String>,
     /// Test-split means of `eval` (dotted names, see `cmd::eval::flatten_view_metrics`).
     pub metrics: BTreeMap<String, f64>,
+    /// The run's log: its Slurm task's log where the bench set one, else the last of
+    /// its `train.log` / `eval.log` present.
+    pub log: Option<PathBuf>,
     /// Evaluation directory and the first evaluated view's file stem (image strips).
     #[serde(skip)]
     pub eval_dir: PathBuf,
@@ -87,6 +90,7 @@ pub fn collect(runs: &[RunSpec], runs_dir: &Path) -> Vec<Row> {
                 adapter: None,
                 config_hash: RunConfig::from_file(&dir.join("config.json")).ok().map(|c| c.hash()),
                 metrics: BTreeMap::new(),
+                log: ["eval.log", "train.log"].iter().map(|f| dir.join(f)).find(|p| p.is_file()),
                 eval_dir: dir.join("eval"),
                 first_view: None,
                 curve: Vec::new(),
@@ -222,6 +226,10 @@ const GEOMETRY_COLS: &[Col] = &[
     Col("<30 %", "normal.all.under_30", 1, 100.0),
     Col("DBE acc", "boundary.accuracy", 2, 1.0),
     Col("DBE comp", "boundary.completeness", 2, 1.0),
+    Col("Chamfer", "mesh.chamfer", 4, 1.0),
+    Col("F-score", "mesh.fscore", 3, 1.0),
+    Col("precision", "mesh.precision", 3, 1.0),
+    Col("recall", "mesh.recall", 3, 1.0),
 ];
 
 fn metric_cells(rows: &[&Row], cols: &[Col]) -> Vec<String> {
@@ -337,7 +345,9 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
             md,
             "## Geometry against ground truth\n\nDepth errors in scene units (mean absolute, overall / outside / inside the GT \
              edge band of 2 px), AbsRel, RMSE, % of pixels with delta < 1.25; normal angle errors in degrees (mean overall / \
-             non-edge / edge, median, % under 11.25 / 22.5 / 30 deg); iBims-1 depth boundary error in pixels.\n"
+             non-edge / edge, median, % under 11.25 / 22.5 / 30 deg); iBims-1 depth boundary error in pixels; the exported mesh \
+             against the scene's gt_mesh.ply (Chamfer distance in scene units, F-score, precision and recall at 1 % of the \
+             box diagonal; `edgenerf eval`).\n"
         );
         let mut header = vec!["scene", "config"];
         header.extend(GEOMETRY_COLS.iter().map(|c| c.0));
@@ -362,11 +372,16 @@ pub fn write_all(input: &ReportInput) -> anyhow::Result<()> {
         let body: Vec<Vec<String>> = failed
             .iter()
             .map(|r| {
-                let why = r.record.as_ref().and_then(|x| x.error.clone()).unwrap_or_else(|| "not run yet (or interrupted)".into());
-                vec![format!("`{}`", r.id), why.replace('|', "\\|")]
+                let why = match (r.record.as_ref().and_then(|x| x.error.clone()), &r.log) {
+                    (Some(e), _) => e,
+                    (None, Some(log)) => format!("unfinished; its log ends: {}", crate::suite::log_error_lines(log)),
+                    (None, None) => "not run yet (or interrupted)".into(),
+                };
+                let log = r.log.as_ref().map_or("-".into(), |l| format!("`{}`", l.strip_prefix(out).unwrap_or(l).display()));
+                vec![format!("`{}`", r.id), why.replace('|', "\\|"), log]
             })
             .collect();
-        table(&mut md, &["run", "error"], &body);
+        table(&mut md, &["run", "error", "log"], &body);
     }
 
     let _ = writeln!(md, "## Plots\n");

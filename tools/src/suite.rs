@@ -346,3 +346,23 @@ pub struct RunRecord {
 pub fn read_record(dir: &Path) -> Option<RunRecord> {
     serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).ok()?).ok()
 }
+
+/// The error lines of a run's or a task's log: from its first `error:` line (or a panic,
+/// or Slurm's `slurmstepd[-<host>]: error: *** JOB ... CANCELLED ...` when it ended the
+/// task) on, else its last 5 lines,
+/// joined by ` | `, at most ~1000 characters; empty when the log is missing or empty.
+pub fn log_error_lines(log: &Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+    let start = lines
+        .iter()
+        .position(|l| l.starts_with("error:") || l.starts_with("thread '") || (l.starts_with("slurmstepd") && l.contains(": error:")))
+        .unwrap_or(lines.len().saturating_sub(5));
+    let mut msg = lines[start..].join(" | ");
+    if msg.len() > 1000 {
+        let cut = (0..=1000).rev().find(|&i| msg.is_char_boundary(i)).unwrap_or(0);
+        msg.truncate(cut);
+        msg.push_str(" ...");
+    }
+    msg
+}

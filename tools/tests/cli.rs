@@ -101,8 +101,9 @@ fn train_writes_its_run_directory_and_render_reads_it_back() {
     let config: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["train"]["iters"], 4);
     assert_eq!(config["field"]["n_levels"], 8, "the config file's values are in the effective config");
-    // Values that default by scene are recorded as used, not null (issue 16).
-    assert_eq!(config["scene"]["llff_factor"], 8);
+    // Values that default by scene are recorded as used, not null (issue 16): a Blender
+    // scene's images are read as they are (factor 1; 8 is LLFF's default).
+    assert_eq!(config["scene"]["llff_factor"], 1);
     assert!(config["regnerf"]["poses"].is_string() && config["regnerf"]["anneal_steps"].is_u64(), "{}", config["regnerf"]);
 
     // Resume extends the run from its checkpoint.

@@ -6,10 +6,13 @@
 //!   to `fl_x` and the image centre) for an image of `w x h` (default: the image's
 //!   size), scaled to the loaded image size; otherwise `camera_angle_x` with a centred
 //!   principal point. Each key may also be given per frame (nerfstudio does so when
-//!   cameras differ), where it wins over the top level's. Pinhole only: a
-//!   `camera_model` other than `PINHOLE`/`SIMPLE_PINHOLE` (or `OPENCV`, `SIMPLE_RADIAL`,
-//!   `RADIAL` with zero distortion), `is_fisheye`, or a non-zero `k1..k4`, `p1`, `p2` is
-//!   an error saying to undistort the images, never silently dropped.
+//!   cameras differ), where it wins over the top level's. Lens: nerfstudio's
+//!   `camera_model` (`PINHOLE`, `SIMPLE_PINHOLE`, `SIMPLE_RADIAL`, `RADIAL`, `OPENCV`
+//!   with `k1..k4`, `p1`, `p2`; `OPENCV_FISHEYE` with `k1..k4`; default `PINHOLE`, with
+//!   the distortion keys still applied, as nerfstudio does), rays generated through it
+//!   ([`Lens`]); any other model and Instant-NGP's `is_fisheye` are errors, never
+//!   silently dropped. nerfstudio's single `transforms.json` has its own reader
+//!   (`super::nerfstudio`) on the same keys.
 //! * Frames: `file_path` relative to the scene root, a leading `./` allowed, with or
 //!   without extension (`.png`, `.jpg`, `.jpeg` are tried). RGBA images are composited
 //!   over [`LoadOptions::background`] and `Scene::background` is set to it.
@@ -37,7 +40,7 @@ use super::image_io::{
     SizeGuard, file_stem, load_depth_exr, load_normal_exr, read_view_image, read_view_mask,
 };
 use super::split::{Split, subset_split};
-use super::{Camera, DataError, LoadOptions, Scene, SceneFormat, View};
+use super::{Camera, DataError, Lens, LoadOptions, Scene, SceneFormat, View};
 
 /// NeRF-synthetic's near / far.
 const DEFAULT_NEAR_FAR: (f32, f32) = (2.0, 6.0);
@@ -68,11 +71,9 @@ struct Frame {
 }
 
 /// The keys that define how pixels map to rays, at the top level of the file or per
-/// frame (a frame's own value wins). Lens models and distortion are read only to be
-/// refused: the renderer's cameras are pinhole, and dropping them silently would train
-/// on rays that miss their pixels.
+/// frame (a frame's own value wins), nerfstudio's lens keys included ([`Lens`]).
 #[derive(Clone, Debug, Default, Deserialize)]
-struct Intrinsics {
+pub(super) struct Intrinsics {
     camera_angle_x: Option<f32>,
     fl_x: Option<f32>,
     fl_y: Option<f32>,
@@ -92,14 +93,18 @@ struct Intrinsics {
     p2: Option<f32>,
 }
 
-/// Camera models that are a pinhole, possibly with distortion terms (then all zero).
-const PINHOLE_MODELS: [&str; 5] = ["PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL"];
+/// Camera models with a perspective projection, read with [`Lens::OpenCv`] (zero
+/// terms: [`Lens::Pinhole`]); nerfstudio's `CAMERA_MODEL_TO_TYPE` maps them to its
+/// `PERSPECTIVE` type.
+const PERSPECTIVE_MODELS: [&str; 5] = ["PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL"];
+/// The fisheye model ([`Lens::Fisheye`]).
+const FISHEYE_MODEL: &str = "OPENCV_FISHEYE";
 
 impl Intrinsics {
     /// `frame`'s keys over `self` (the file's top level). The focal length is taken
     /// whole: a frame that sets `camera_angle_x` and no `fl_x` uses the angle, not the
     /// top level's `fl_x`, and one that sets `fl_x` without `fl_y` has `fl_y = fl_x`.
-    fn under(&self, frame: &Intrinsics) -> Intrinsics {
+    pub(super) fn under(&self, frame: &Intrinsics) -> Intrinsics {
         let angle_only = frame.camera_angle_x.is_some() && frame.fl_x.is_none();
         let pick = |f: Option<f32>, t: Option<f32>| f.or(t);
         Intrinsics {
@@ -125,27 +130,39 @@ impl Intrinsics {
         }
     }
 
-    /// Refuses lens models and distortion the pinhole renderer cannot honour.
-    fn check_pinhole(&self) -> Result<(), String> {
-        const UNDISTORT: &str = "edgenerf's cameras are pinhole: undistort the images first (e.g. COLMAP's \
-             image_undistorter or ns-process-data), then write camera_model PINHOLE without distortion terms";
-        if let Some(model) = &self.camera_model
-            && !PINHOLE_MODELS.contains(&model.as_str())
-        {
-            return Err(format!("camera_model {model:?} is not supported; {UNDISTORT}"));
-        }
+    /// The lens the keys describe: `camera_model` (default `PINHOLE`) with `k1..k4`,
+    /// `p1`, `p2` (default 0). Refuses what the ray generator cannot honour (other models,
+    /// Instant-NGP's `is_fisheye`, tangential terms on a fisheye) instead of dropping it.
+    fn lens(&self) -> Result<Lens, String> {
+        const MODELS: &str = "PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV (k1..k4, p1, p2) or OPENCV_FISHEYE (k1..k4)";
+        let z = |v: Option<f32>| v.unwrap_or(0.0);
+        let k = [z(self.k1), z(self.k2), z(self.k3), z(self.k4)];
+        let p = [z(self.p1), z(self.p2)];
         if self.is_fisheye == Some(true) {
-            return Err(format!("is_fisheye is true; {UNDISTORT}"));
+            return Err(format!(
+                "is_fisheye (Instant-NGP's switch) is not supported; write camera_model OPENCV_FISHEYE with k1..k4 instead (supported models: {MODELS})"
+            ));
         }
-        let terms = [("k1", self.k1), ("k2", self.k2), ("k3", self.k3), ("k4", self.k4), ("p1", self.p1), ("p2", self.p2)];
-        if let Some((name, Some(v))) = terms.iter().find(|(_, v)| v.is_some_and(|v| v != 0.0)) {
-            return Err(format!("lens distortion {name} = {v} is not supported; {UNDISTORT}"));
-        }
-        Ok(())
+        let lens = match self.camera_model.as_deref() {
+            None => Lens::opencv(k, p),
+            Some(m) if PERSPECTIVE_MODELS.contains(&m) => Lens::opencv(k, p),
+            Some(FISHEYE_MODEL) if p.iter().any(|&v| v != 0.0) => {
+                return Err(format!("camera_model OPENCV_FISHEYE has no tangential terms but p1 {} / p2 {} are set", p[0], p[1]));
+            }
+            Some(FISHEYE_MODEL) => Lens::Fisheye { k },
+            Some(m) => {
+                return Err(format!(
+                    "camera_model {m:?} is not supported (supported: {MODELS}); undistort the images (e.g. COLMAP's image_undistorter) and write PINHOLE"
+                ));
+            }
+        };
+        lens.check()?;
+        Ok(lens)
     }
 
-    /// The camera of a `width x height` image with pose `c2w`.
-    fn camera(&self, width: u32, height: u32, c2w: Mat4) -> Result<Camera, String> {
+    /// The camera of a `width x height` image with pose `c2w`, its lens included.
+    pub(super) fn camera(&self, width: u32, height: u32, c2w: Mat4) -> Result<Camera, String> {
+        let lens = self.lens()?;
         let (w, h) = (width as f32, height as f32);
         if let Some(fl_x) = self.fl_x {
             let (w0, h0) = (self.w.unwrap_or(w), self.h.unwrap_or(h));
@@ -161,10 +178,13 @@ impl Intrinsics {
                 cx: self.cx.unwrap_or(0.5 * w0) * sx,
                 cy: self.cy.unwrap_or(0.5 * h0) * sy,
                 c2w,
+                lens,
             });
         }
         match self.camera_angle_x {
-            Some(angle) if angle > 0.0 && angle < std::f32::consts::PI => Ok(Camera::from_fov_x(width, height, angle, c2w)),
+            Some(angle) if angle > 0.0 && angle < std::f32::consts::PI => {
+                Ok(Camera { lens, ..Camera::from_fov_x(width, height, angle, c2w) })
+            }
             Some(angle) => Err(format!("camera_angle_x = {angle} must be a field of view in radians, in (0, pi)")),
             None => Err("no intrinsics: add camera_angle_x or fl_x/fl_y/cx/cy/w/h".into()),
         }
@@ -180,7 +200,7 @@ fn read_transforms(path: &Path) -> Result<Transforms, DataError> {
 }
 
 /// `rel` (optionally starting with `./`) under `root`.
-fn resolve(root: &Path, rel: &str) -> PathBuf {
+pub(super) fn resolve(root: &Path, rel: &str) -> PathBuf {
     let mut rel = rel;
     while let Some(r) = rel.strip_prefix("./") {
         rel = r;
@@ -189,7 +209,7 @@ fn resolve(root: &Path, rel: &str) -> PathBuf {
 }
 
 /// The image of a frame: `file_path` as given, or with an image extension appended.
-fn find_image(root: &Path, file_path: &str) -> Option<PathBuf> {
+pub(super) fn find_image(root: &Path, file_path: &str) -> Option<PathBuf> {
     let base = resolve(root, file_path);
     if base.is_file() {
         return Some(base);
@@ -219,7 +239,7 @@ impl Loader<'_> {
             })?;
         let c2w = Mat4::from_cols_array_2d(&frame.transform_matrix).transpose();
         let intrinsics = t.intrinsics.under(&frame.intrinsics);
-        intrinsics.check_pinhole().map_err(|m| DataError::invalid(json, format!("{}: {m}", what())))?;
+        intrinsics.lens().map_err(|m| DataError::invalid(json, format!("{}: {m}", what())))?;
         let img = read_view_image(
             &path,
             self.opts.load_images,

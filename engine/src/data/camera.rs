@@ -1,19 +1,28 @@
-//! Pinhole cameras, world-space rays, and NeRF's NDC mapping for forward-facing scenes.
+//! Cameras (pinhole intrinsics plus an optional lens distortion, [`Lens`]), world-space
+//! rays, and NeRF's NDC mapping for forward-facing scenes.
 //!
 //! Conventions are those of the parent module ([`crate::data`]): OpenGL camera frame
 //! (look down `-z`, `+y` up), pixel origin at the top-left image corner with `y` down,
-//! pixel centres at `+0.5`. [`Camera::c2w`] is a `glam::Mat4` whose upper 3x3 is a
+//! pixel centres at `+0.5` (COLMAP's and nerfstudio's convention too, so their `cx`, `cy`
+//! are used as they are). [`Camera::c2w`] is a `glam::Mat4` whose upper 3x3 is a
 //! rotation (orthonormal up to the rounding of the source data) and whose last column is
 //! the camera centre; it is never scaled, so world units are the scene's units.
 //!
 //! Loaders enforce this with [`Camera::check`] (positive finite focal lengths, a rigid
 //! `c2w` with bottom row `0 0 0 1`), refusing the camera file otherwise.
 //!
-//! Invariants: [`Camera::pixel_ray`] returns a unit direction and `z_scale` in `(0, 1]`;
+//! Distorted cameras generate distorted rays: the ray of pixel `p` is the direction that
+//! [`Camera::lens`] projects to `p` (no image is resampled). [`Camera::resized`] keeps the
+//! lens: its coefficients act on normalised coordinates, independent of resolution.
+//!
+//! Invariants: [`Camera::pixel_ray`] returns a unit direction and `z_scale` in `(0, 1]`
+//! (`<= 0` only for fisheye rays past 90 degrees from the axis);
 //! [`Camera::project`] is its inverse (a point at distance `t` along the ray of pixel `p`
-//! projects back to `p` with z-depth `t * z_scale`).
+//! projects back to `p` with z-depth `t * z_scale`), the lens included.
 
-use glam::{Mat4, Vec2, Vec3, Vec4Swizzles};
+use glam::{DVec2, DVec3, Mat4, Vec2, Vec3, Vec4Swizzles};
+
+pub use super::lens::Lens;
 
 /// A ray. World-space rays have a unit `dir` and `t` is the distance from the origin;
 /// NDC rays (see [`NdcParams::ray_to_ndc`]) keep NeRF's non-unit direction so that
@@ -38,7 +47,8 @@ impl Ray {
 /// rotation (poses are often stored with 6-7 significant digits).
 pub const RIGID_TOLERANCE: f32 = 1e-3;
 
-/// A pinhole camera without distortion (principal point and focal lengths in pixels).
+/// A camera: pinhole intrinsics (principal point and focal lengths in pixels) and a
+/// lens model ([`Lens::Pinhole`] for none).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
     pub width: u32,
@@ -49,6 +59,9 @@ pub struct Camera {
     pub cy: f32,
     /// Camera-to-world transform (OpenGL camera frame), rigid.
     pub c2w: Mat4,
+    /// Lens distortion applied to the normalised coordinates `((px - cx) / fx, (py - cy) / fy)`.
+    #[serde(default)]
+    pub lens: Lens,
 }
 
 impl Camera {
@@ -64,6 +77,7 @@ impl Camera {
             cx: 0.5 * width as f32,
             cy: 0.5 * height as f32,
             c2w,
+            lens: Lens::Pinhole,
         }
     }
 
@@ -80,6 +94,7 @@ impl Camera {
             cx: self.cx * sx,
             cy: self.cy * sy,
             c2w: self.c2w,
+            lens: self.lens,
         }
     }
 
@@ -119,12 +134,23 @@ impl Camera {
         if !(self.cx.is_finite() && self.cy.is_finite()) {
             return Err(format!("principal point ({}, {}) is not finite", self.cx, self.cy));
         }
+        self.lens.check()?;
         check_rigid(&self.c2w)
     }
 
-    /// Camera-space direction (not normalised, `z = -1`) through image point `(px, py)`.
+    /// Camera-space direction (OpenGL frame, not normalised; `z = -1` for a pinhole)
+    /// through image point `(px, py)`.
     fn camera_dir(&self, px: f32, py: f32) -> Vec3 {
-        Vec3::new((px - self.cx) / self.fx, -(py - self.cy) / self.fy, -1.0)
+        if self.lens.is_pinhole() {
+            return Vec3::new((px - self.cx) / self.fx, -(py - self.cy) / self.fy, -1.0);
+        }
+        let xd = DVec2::new(
+            (f64::from(px) - f64::from(self.cx)) / f64::from(self.fx),
+            (f64::from(py) - f64::from(self.cy)) / f64::from(self.fy),
+        );
+        let d = self.lens.unproject(xd);
+        // OpenCV (x right, y down, z forward) to OpenGL (x right, y up, z backward).
+        Vec3::new(d.x as f32, -d.y as f32, -d.z as f32)
     }
 
     /// The world-space ray through image point `(px, py)` (continuous pixel coordinates:
@@ -166,8 +192,12 @@ impl Camera {
         if z <= 0.0 || !z.is_finite() {
             return None;
         }
+        if self.lens.is_pinhole() {
+            return Some((Vec2::new(self.cx + self.fx * q.x / z, self.cy - self.fy * q.y / z), z));
+        }
+        let xd = self.lens.project(DVec3::new(q.x.into(), (-q.y).into(), z.into()))?;
         Some((
-            Vec2::new(self.cx + self.fx * q.x / z, self.cy - self.fy * q.y / z),
+            Vec2::new(self.cx + self.fx * xd.x as f32, self.cy + self.fy * xd.y as f32),
             z,
         ))
     }
@@ -176,6 +206,27 @@ impl Camera {
     pub fn in_frame(&self, px: Vec2) -> bool {
         px.x >= 0.0 && px.y >= 0.0 && px.x < self.width as f32 && px.y < self.height as f32
     }
+}
+
+/// The point nearest (least squares) to all cameras' optical axes (RegNeRF's
+/// `focus_pt_fn`); the mean camera position when the axes are (nearly) parallel.
+pub fn focus_point(cameras: &[Camera]) -> Vec3 {
+    let (mut a, mut b) = (glam::DMat3::ZERO, glam::DVec3::ZERO);
+    for c in cameras {
+        let d = c.forward().as_dvec3();
+        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * c.origin().as_dvec3();
+    }
+    let mean = cameras.iter().map(|c| c.origin()).sum::<Vec3>() / cameras.len().max(1) as f32;
+    if a.determinant().abs() < 1e-9 { mean } else { (a.inverse() * b).as_vec3() }
+}
+
+/// Whether every camera's optical axis lies within `max_deg` degrees of the cameras'
+/// mean axis (a capture facing one way rather than around an object).
+pub fn facing_one_way(cameras: &[Camera], max_deg: f32) -> bool {
+    let mean = cameras.iter().map(|c| c.forward()).sum::<Vec3>().normalize_or_zero();
+    cameras.iter().all(|c| c.forward().dot(mean) >= max_deg.to_radians().cos())
 }
 
 /// Why `c2w` is not a rigid camera-to-world transform, if it is not: finite, rotation
@@ -258,6 +309,13 @@ impl NdcParams {
         )
     }
 
+    /// Maps an NDC point back to world space (inverse of [`NdcParams::point_to_ndc`];
+    /// NDC `z -> 1` is infinitely far, and `z >= 1` gives non-finite values).
+    pub fn ndc_to_world(&self, q: Vec3) -> Vec3 {
+        let z = 2.0 * self.near / (q.z - 1.0);
+        Vec3::new(-q.x * z * self.width / (2.0 * self.focal_x), -q.y * z * self.height / (2.0 * self.focal_y), z)
+    }
+
     /// World depth `-z` of the point at NDC ray parameter `t` (inverse of NDC
     /// `z = 2t - 1 = 1 + 2 near / z`): `near / (1 - t)`.
     pub fn ndc_t_to_world_depth(&self, t: f32) -> f32 {
@@ -281,6 +339,7 @@ mod tests {
             cx: 31.0,
             cy: 25.0,
             c2w,
+            lens: Lens::Pinhole,
         }
     }
 
@@ -363,5 +422,6 @@ mod tests {
         let t = (p.z + 1.0) / 2.0;
         assert!((r.at(t) - p).length() < 1e-4, "{} vs {p}", r.at(t));
         assert!((ndc.ndc_t_to_world_depth(t) + world.z).abs() < 1e-3);
+        assert!((ndc.ndc_to_world(p) - world).length() < 1e-4, "{} vs {world}", ndc.ndc_to_world(p));
     }
 }

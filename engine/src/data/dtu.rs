@@ -277,6 +277,7 @@ pub(super) fn load(
             cx: (cx / factor) as f32,
             cy: (cy / factor) as f32,
             c2w,
+            lens: Default::default(),
         };
         if let Err(m) = camera.check() {
             return Err(DataError::NonFinite {
@@ -396,6 +397,7 @@ mod tests {
             cx: 200.0,
             cy: 150.0,
             c2w: c2w.as_mat4(),
+            lens: Default::default(),
         };
         let x = DVec3::new(0.1, -0.3, 0.2);
         let q = npz_like * x.extend(1.0);

@@ -16,8 +16,10 @@ pub enum DataError {
     /// The directory holds none of the files that identify a known layout.
     #[error(
         "unrecognised scene layout in {path}: expected one of transforms_train.json \
-         (blender / NeRF-synthetic), poses_bounds.npy (LLFF), cameras_sphere.npz (DTU, IDR \
-         layout) or cameras.npz (DTU, pixelNeRF layout); point to the scene directory itself"
+         (blender / NeRF-synthetic), transforms.json (nerfstudio), poses_bounds.npy (LLFF), \
+         cameras_sphere.npz (DTU, IDR layout), cameras.npz (DTU, pixelNeRF layout) or a \
+         COLMAP model in sparse/0/ or sparse/ (cameras, images, points3D .bin or .txt); \
+         point to the scene directory itself"
     )]
     UnknownFormat { path: PathBuf },
 

@@ -13,6 +13,7 @@ use exr::prelude::{self as exrp, FlatSamples, WritableImage};
 use image::ImageDecoder;
 
 use super::DataError;
+use super::resample::{downscaled_size, resize_area};
 
 /// An RGB image with `f32` channels, row-major, 3 floats per pixel.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -158,6 +159,16 @@ pub fn load_mask(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<f32>), DataErr
         h,
         rgb.pixels().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect(),
     ))
+}
+
+/// Loads a grey image's raw values (16-bit PNGs as stored, 8-bit ones widened to 16
+/// bits as the `image` crate does, `v * 257`) as `f32`, for sensor depth maps stored in
+/// integer units (millimetres, nerfstudio's default). Returns `(width, height, values)`.
+pub fn load_grey16(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<f32>), DataError> {
+    let path = path.as_ref();
+    let grey = decode(path)?.into_luma16();
+    let (w, h) = grey.dimensions();
+    Ok((w, h, grey.pixels().map(|p| f32::from(p[0])).collect()))
 }
 
 fn exr_error(path: &Path, message: impl std::fmt::Display) -> DataError {
@@ -358,6 +369,50 @@ pub(crate) fn read_view_image(
     } else {
         (ImageRgb::default(), None)
     };
+    Ok(ViewImage { image, alpha, info })
+}
+
+impl ViewImage {
+    /// The view of this picture at `path` with `camera`: named by the file stem, its
+    /// alpha kept, no mask or ground truth yet.
+    pub(crate) fn into_view(self, path: PathBuf, camera: super::Camera) -> super::View {
+        super::View {
+            name: file_stem(&path),
+            path,
+            camera,
+            image: self.image,
+            mask: None,
+            alpha: self.alpha,
+            depth: None,
+            normal: None,
+        }
+    }
+}
+
+/// [`read_view_image`] of a picture downsampled by `factor` on load
+/// ([`super::resample`]: area averaging of the colour and the alpha; the size is
+/// [`downscaled_size`]); `factor` 1 reads it as it is.
+pub(crate) fn read_view_image_downscaled(
+    path: &Path,
+    factor: u32,
+    load_pixels: bool,
+    background: [f32; 3],
+    guard: &mut SizeGuard,
+) -> Result<ViewImage, DataError> {
+    if factor <= 1 {
+        return read_view_image(path, load_pixels, background, guard);
+    }
+    let full = image_info(path)?;
+    let (w, h) = downscaled_size(full.width, full.height, factor);
+    guard.check(path, (w, h))?;
+    let info = ImageInfo { width: w, height: h, ..full };
+    if !load_pixels {
+        return Ok(ViewImage { image: ImageRgb::default(), alpha: None, info });
+    }
+    let (image, alpha) = ImageRgb::load(path, background)?;
+    let from = (image.width, image.height);
+    let image = ImageRgb { width: w, height: h, data: resize_area(&image.data, 3, from, (w, h)) };
+    let alpha = alpha.map(|a| resize_area(&a, 1, from, (w, h)));
     Ok(ViewImage { image, alpha, info })
 }
 

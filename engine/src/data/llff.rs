@@ -18,20 +18,22 @@
 //! NDC cube in x and y because cameras rotated off the mean axis (fern: up to ~9 deg)
 //! send border rays up to ~1.44 sideways before they reach z = 1. Images are the image files of
 //! `images_{factor}` (`images` for factor 1; [`LoadOptions::llff_factor`], the CLI's
-//! `--llff-factor`) sorted by name, one per pose in order; without that folder the error
-//! lists the image folders the scene has. Every pose must be rigid ([`super::camera::check_rigid`]).
+//! `--llff-factor`, default 8) sorted by name, one per pose in order; without that folder
+//! the images of `images` are downsampled by the factor on load ([`super::resample`],
+//! area averaging to `round(size / factor)`, as NeRF's `_minify` writes `images_N`), and
+//! without either the error lists the image folders the scene has. Every pose must be rigid ([`super::camera::check_rigid`]).
 //! Split: [`llff_split`].
 
 use std::path::Path;
 
 use glam::{DMat4, DVec3, Vec3};
 
-use super::image_io::{SizeGuard, file_stem, list_images, read_view_image};
+use super::image_io::{SizeGuard, list_images, read_view_image_downscaled};
 use super::npy::read_npy;
 use super::{Camera, DataError, LoadOptions, NdcParams, Scene, SceneFormat, View, llff_split};
 
 /// NeRF's `bd_factor`: the closest scene bound ends up at `1 / BD_FACTOR`.
-const BD_FACTOR: f64 = 0.75;
+pub(super) const BD_FACTOR: f64 = 0.75;
 /// World distance of the NDC near plane after rescaling.
 const NDC_NEAR: f32 = 1.0;
 
@@ -42,6 +44,18 @@ pub(crate) fn image_dir_name(factor: u32) -> String {
     } else {
         format!("images_{factor}")
     }
+}
+
+/// Where the images of downsampling `factor` come from: `root/images_{factor}` read as
+/// they are (resample factor 1), else `root/images` downsampled by `factor` on load;
+/// `None` when neither folder exists.
+pub(super) fn image_folder(root: &Path, factor: u32) -> Option<(std::path::PathBuf, u32)> {
+    let wanted = root.join(image_dir_name(factor));
+    if wanted.is_dir() {
+        return Some((wanted, 1));
+    }
+    let full = root.join("images");
+    full.is_dir().then_some((full, factor))
 }
 
 /// The error for a missing `images_{factor}` folder: which image folders the scene
@@ -184,10 +198,8 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         raw.push(pose);
     }
 
-    let image_dir = root.join(image_dir_name(opts.llff_factor));
-    if !image_dir.is_dir() {
-        return Err(missing_image_dir(root, opts.llff_factor));
-    }
+    let factor = opts.llff_factor.unwrap_or(SceneFormat::Llff.default_downscale());
+    let (image_dir, resample_factor) = image_folder(root, factor).ok_or_else(|| missing_image_dir(root, factor))?;
     let files = list_images(&image_dir, "LLFF image folder")?;
     if files.len() != n {
         return Err(DataError::CountMismatch {
@@ -202,24 +214,12 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         .iter()
         .map(|p| p.bounds[0])
         .fold(f64::INFINITY, f64::min);
-    let sc = 1.0 / (min_bound * BD_FACTOR);
-    let mut poses: Vec<DMat4> = raw
-        .iter()
-        .map(|p| {
-            let mut c2w = p.c2w;
-            c2w.w_axis = (c2w.w_axis.truncate() * sc).extend(1.0);
-            c2w
-        })
-        .collect();
-    let inv_avg = average_pose(&poses).inverse();
-    for pose in &mut poses {
-        *pose = inv_avg * *pose;
-    }
+    let (poses, _) = normalize_forward_facing(&raw.iter().map(|p| p.c2w).collect::<Vec<_>>(), min_bound);
 
     let mut guard = SizeGuard::default();
     let mut views = Vec::with_capacity(n);
     for (i, (path, pose)) in files.iter().zip(&poses).enumerate() {
-        let img = read_view_image(path, opts.load_images, [0.0; 3], &mut guard)?;
+        let img = read_view_image_downscaled(path, resample_factor, opts.load_images, [0.0; 3], &mut guard)?;
         let (w, h) = (img.info.width, img.info.height);
         let [h0, w0, f] = raw[i].hwf;
         let (sx, sy) = (w as f64 / w0, h as f64 / h0);
@@ -240,6 +240,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             cx: 0.5 * w as f32,
             cy: 0.5 * h as f32,
             c2w: pose.as_mat4(),
+            lens: Default::default(),
         };
         if let Err(m) = camera.check() {
             return Err(DataError::NonFinite {
@@ -247,23 +248,41 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
                 what: format!("row {i} (pose of image {i}), after recentring: {m}"),
             });
         }
-        views.push(View {
-            name: file_stem(path),
-            path: path.clone(),
-            camera,
-            image: img.image,
-            mask: None,
-            alpha: img.alpha,
-            depth: None,
-            normal: None,
-        });
+        views.push(img.into_view(path.clone(), camera));
     }
 
     let split = llff_split(n, opts.views).map_err(|m| DataError::invalid(root, m))?;
+    Ok(ndc_scene(root, SceneFormat::Llff, views, split))
+}
+
+/// Steps 3 and 4 of the module doc on camera-to-world poses (OpenGL frame) whose
+/// closest scene content lies `min_near` in front of them: the poses rescaled by
+/// `sc = 1 / (min_near * BD_FACTOR)` and recentred on their average pose, and `sc`.
+/// COLMAP and nerfstudio captures that face one way go through it too.
+pub(super) fn normalize_forward_facing(c2w: &[DMat4], min_near: f64) -> (Vec<DMat4>, f64) {
+    let sc = 1.0 / (min_near * BD_FACTOR);
+    let mut poses: Vec<DMat4> = c2w
+        .iter()
+        .map(|p| {
+            let mut c2w = *p;
+            c2w.w_axis = (c2w.w_axis.truncate() * sc).extend(1.0);
+            c2w
+        })
+        .collect();
+    let inv_avg = average_pose(&poses).inverse();
+    for pose in &mut poses {
+        *pose = inv_avg * *pose;
+    }
+    (poses, sc)
+}
+
+/// A forward-facing scene of normalised views ([`normalize_forward_facing`]): NDC
+/// rays from the first view's intrinsics, near/far 0/1 and the NDC slab of the module doc.
+pub(super) fn ndc_scene(root: &Path, format: SceneFormat, views: Vec<View>, split: super::Split) -> Scene {
     let c0 = views[0].camera;
-    Ok(Scene {
+    Scene {
         root: root.to_path_buf(),
-        format: SceneFormat::Llff,
+        format,
         views,
         split,
         near: 0.0,
@@ -277,5 +296,5 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         }),
         aabb: [Vec3::new(-1.5, -1.5, -1.0), Vec3::new(1.5, 1.5, 1.0)],
         background: None,
-    })
+    }
 }

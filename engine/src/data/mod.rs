@@ -1,14 +1,16 @@
 //! Scenes: images, cameras, optional ground truth, and the train/test split.
 //!
 //! Owns the one [`Scene`] type every format loads into, the camera model and ray
-//! generation ([`camera`]), novel-view camera paths for videos ([`paths`]), the format
-//! readers (`blender`, `llff`, `dtu`, plus the NumPy readers they share), and numpy's
-//! [`quantile`]. Nothing here touches the GPU.
+//! generation ([`camera`], lens distortion in `lens`), novel-view camera paths for
+//! videos ([`paths`]), the format readers (`blender`, `nerfstudio`, `colmap`, `llff`,
+//! `dtu`, plus the NumPy readers they share), the scene bounds of captures without any
+//! (`bounds`), the one image resampler ([`resample`]) and numpy's [`quantile`].
+//! Nothing here touches the GPU.
 //!
 //! # Conventions (stated once, used everywhere)
 //! * **Camera frame**: OpenGL / NeRF. The camera looks down its local `-z`, `+x` is
 //!   right and `+y` is up. `Camera::c2w` maps camera to world. Loaders of OpenCV-style
-//!   data (DTU) flip `y` and `z` on load so everything downstream sees one convention.
+//!   data (DTU, COLMAP) flip `y` and `z` on load so everything downstream sees one convention.
 //! * **Pixels**: `(x, y)` with `x` to the right, `y` down, origin at the top-left
 //!   corner of the image; the pixel centre is at `(x + 0.5, y + 0.5)` (mip-NeRF /
 //!   RegNeRF convention).
@@ -25,7 +27,9 @@
 //!   direction (so `t` in `[0, 1]` spans the near plane to infinity, NDC `z = 2t - 1`)
 //!   and have `z_scale = 1`.
 //! * **Intrinsics** are in pixels of the *loaded* images (loaders rescale them when the
-//!   camera file describes another resolution); no lens distortion.
+//!   camera file describes another resolution). Lens distortion (COLMAP and nerfstudio's
+//!   OPENCV and OPENCV_FISHEYE models) stays in the camera ([`Camera::lens`]): rays are
+//!   generated through the distorted lens, images are never undistorted.
 //!
 //! # Invariants
 //! * Every view of a scene has the same image size; loaders enforce it.
@@ -33,21 +37,26 @@
 //! * Images are linear-in-file (sRGB-encoded as stored, no conversion), RGB, `f32` in
 //!   `[0, 1]`, row-major, `3` floats per pixel.
 
+mod bounds;
 pub mod camera;
 mod error;
 mod image_io;
+mod lens;
 pub mod npy;
 pub mod paths;
+pub mod resample;
 mod split;
 mod stats;
 
 mod blender;
+mod colmap;
 mod dtu;
 mod llff;
+mod nerfstudio;
 
 use std::path::{Path, PathBuf};
 
-pub use camera::{Camera, NdcParams, Ray};
+pub use camera::{Camera, Lens, NdcParams, Ray};
 pub use error::DataError;
 pub use image_io::{
     ImageInfo, ImageRgb, image_info, load_depth_exr, load_mask, load_normal_exr, save_depth_exr,
@@ -68,6 +77,10 @@ pub enum SceneFormat {
     DtuIdr,
     /// DTU in the pixelNeRF / RegNeRF layout (`cameras.npz`, `image/`, `mask/`).
     DtuPixelNerf,
+    /// nerfstudio's single `transforms.json` (`ns-process-data`'s output).
+    Nerfstudio,
+    /// A COLMAP sparse model (`sparse/0/` or `sparse/`, text or binary) + `images/`.
+    Colmap,
 }
 
 impl SceneFormat {
@@ -76,6 +89,12 @@ impl SceneFormat {
     /// evaluation protocol follow.
     pub fn is_dtu(self) -> bool {
         matches!(self, SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf)
+    }
+
+    /// The image downsampling factor [`LoadOptions::llff_factor`] means when unset: 8
+    /// for LLFF (RegNeRF's protocol), 1 (the images as they are) for every other format.
+    pub fn default_downscale(self) -> u32 {
+        if self == SceneFormat::Llff { 8 } else { 1 }
     }
 }
 
@@ -86,6 +105,8 @@ impl std::fmt::Display for SceneFormat {
             SceneFormat::Llff => "llff (poses_bounds.npy)",
             SceneFormat::DtuIdr => "dtu (IDR layout, cameras_sphere.npz)",
             SceneFormat::DtuPixelNerf => "dtu (pixelNeRF layout, cameras.npz)",
+            SceneFormat::Nerfstudio => "nerfstudio (transforms.json)",
+            SceneFormat::Colmap => "colmap (sparse model)",
         })
     }
 }
@@ -98,15 +119,18 @@ pub struct LoadOptions {
     pub views: Option<usize>,
     /// Background colour that RGBA images are composited over (Blender format).
     pub background: [f32; 3],
-    /// LLFF: which `images_N` folder to read (8 gives 504x378 for LLFF scenes).
-    pub llff_factor: u32,
+    /// Image downsampling factor `N` (the name is LLFF's, where it began): LLFF, COLMAP
+    /// and nerfstudio scenes read `images_N` (`images` for 1), or downsample the full
+    /// images on load ([`resample`]) when there is no such folder; other formats ignore
+    /// it. `None`: [`SceneFormat::default_downscale`] (8 for LLFF: 504x378 for its scenes).
+    pub llff_factor: Option<u32>,
     /// Load the image pixels. `false` reads only cameras and sizes (fast `info`).
     pub load_images: bool,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: 8, load_images: true }
+        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true }
     }
 }
 
@@ -159,6 +183,8 @@ impl Scene {
             SceneFormat::Blender => blender::load(root, opts),
             SceneFormat::Llff => llff::load(root, opts),
             f @ (SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf) => dtu::load(root, f, opts),
+            SceneFormat::Nerfstudio => nerfstudio::load(root, opts),
+            SceneFormat::Colmap => colmap::load(root, opts),
         }
     }
 
@@ -225,19 +251,38 @@ pub(crate) fn real_scene_dir(rel: &str) -> Option<PathBuf> {
     None
 }
 
-/// Finds which reader understands `root`.
+/// Finds which reader understands `root`, by the files that identify each layout, in
+/// this order: `transforms_train.json` (Blender; with a `transforms.json` beside it the
+/// scene is ambiguous, an error), `transforms.json` (nerfstudio), `poses_bounds.npy`
+/// (LLFF, which often keeps its COLMAP model in `sparse/0` too), `cameras_sphere.npz`,
+/// `cameras.npz` (DTU), then a COLMAP model (`sparse/0/` or `sparse/` holding
+/// `cameras.bin` or `cameras.txt`; a `sparse` folder without one is an error naming
+/// what is missing).
 pub fn detect_format(root: &Path) -> Result<SceneFormat, DataError> {
     if !root.is_dir() {
         return Err(DataError::NotFound { path: root.to_path_buf(), what: "scene directory" });
     }
-    if root.join("transforms_train.json").is_file() {
+    let blender = root.join("transforms_train.json").is_file();
+    let ns = root.join("transforms.json").is_file();
+    if blender && ns {
+        return Err(DataError::invalid(
+            root,
+            "both transforms_train.json (Blender layout) and transforms.json (nerfstudio) are present, so the \
+             layout is ambiguous; move the one you do not mean to train on out of the folder",
+        ));
+    }
+    if blender {
         Ok(SceneFormat::Blender)
+    } else if ns {
+        Ok(SceneFormat::Nerfstudio)
     } else if root.join("poses_bounds.npy").is_file() {
         Ok(SceneFormat::Llff)
     } else if root.join("cameras_sphere.npz").is_file() {
         Ok(SceneFormat::DtuIdr)
     } else if root.join("cameras.npz").is_file() {
         Ok(SceneFormat::DtuPixelNerf)
+    } else if root.join("sparse").is_dir() {
+        colmap::model_dir(root).map(|_| SceneFormat::Colmap)
     } else {
         Err(DataError::UnknownFormat { path: root.to_path_buf() })
     }

@@ -2,7 +2,7 @@
 //! forward-facing spiral ([`spiral`]), an orbit around an object-centric scene
 //! ([`orbit`]) and a smooth loop through the training poses ([`interpolate`]); and the
 //! pose helpers they share with RegNeRF's random poses (`train::random_poses`):
-//! [`look_at`], the cameras' [`focus_point`] and [`average_pose`].
+//! [`look_at`] and [`average_pose`] (with the cameras' [`focus_point`] from `camera`).
 //!
 //! * **Spiral** (NeRF's `render_path_spiral`, RegNeRF's `generate_spiral_path`): around
 //!   the average pose (mean centre, summed back and up axes), offsets
@@ -11,7 +11,8 @@
 //!   pose looks at the point `focus depth` ahead of the average pose on its axis, with the
 //!   cameras' mean up vector. Focus depth: NeRF's `1 / (0.25 / (0.9 near) + 0.75 / (5 far))`
 //!   ([`focus_depth`]) from the scene's depth bounds (LLFF: `poses_bounds.npy` in the
-//!   loader's rescaled units); world scenes use the depth of the cameras' focus point
+//!   loader's rescaled units; forward-facing COLMAP / nerfstudio captures: the closest
+//!   bound only, as RegNeRF's random poses do); world scenes use the depth of the cameras' focus point
 //!   along the average axis instead, since their near / far are loose ray ranges.
 //! * **Orbit**: a circle around a centre (the training cameras' [`focus_point`] when it
 //!   lies in the scene box, else the box centre) about the cameras' mean up vector, at
@@ -35,6 +36,7 @@ use std::path::PathBuf;
 
 use glam::{Mat3, Mat4, Quat, Vec3};
 
+use super::camera::focus_point;
 use super::{Camera, DataError, Scene, SceneFormat, quantile};
 
 /// Turns of NeRF's spiral.
@@ -109,20 +111,6 @@ pub fn look_at(position: Vec3, target: Vec3, up: Vec3) -> Mat4 {
     let x = x.normalize();
     let y = z.cross(x);
     Mat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), position.extend(1.0))
-}
-
-/// The point nearest (least squares) to all cameras' optical axes (RegNeRF's
-/// `focus_pt_fn`); the mean camera position when the axes are (nearly) parallel.
-pub fn focus_point(cameras: &[Camera]) -> Vec3 {
-    let (mut a, mut b) = (glam::DMat3::ZERO, glam::DVec3::ZERO);
-    for c in cameras {
-        let d = c.forward().as_dvec3();
-        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += m;
-        b += m * c.origin().as_dvec3();
-    }
-    let mean = cameras.iter().map(|c| c.origin()).sum::<Vec3>() / cameras.len().max(1) as f32;
-    if a.determinant().abs() < 1e-9 { mean } else { (a.inverse() * b).as_vec3() }
 }
 
 /// Mean position, rotation of the average pose (NeRF's `poses_avg`: mean back axis and
@@ -234,13 +222,19 @@ pub fn interpolate(poses: &[Mat4], frames: usize) -> Vec<Mat4> {
 }
 
 /// The depth the spiral of `scene` focuses at (module doc): NeRF's [`focus_depth`] of
-/// the LLFF bounds, or for world scenes the depth of the cameras' focus point along
+/// the LLFF bounds (of the closest bound alone for other forward-facing captures, whose
+/// bounds the scene does not keep), or for world scenes the depth of the cameras' focus point along
 /// their average axis (NeRF's formula on the scene's near / far when that point is not
 /// in front of them).
 pub fn spiral_focus_depth(scene: &Scene, cameras: &[Camera]) -> Result<f32, PathError> {
     if scene.format == SceneFormat::Llff {
         let [near, far] = super::llff::world_bounds(&scene.root)?;
         return Ok(focus_depth(near, far));
+    }
+    if let Some(ndc) = scene.ndc {
+        // A forward-facing COLMAP / nerfstudio capture: its bounds are not kept, but the
+        // closest one sits at `1 / BD_FACTOR` after the rescaling; the far term drops.
+        return Ok(focus_depth(ndc.near / super::llff::BD_FACTOR as f32, f32::INFINITY));
     }
     let (centre, rot, _) = average_pose(cameras);
     let depth = (focus_point(cameras) - centre).dot(-rot.z_axis);
@@ -289,7 +283,7 @@ mod tests {
     const EPS: f32 = 1e-4;
 
     fn camera(c2w: Mat4) -> Camera {
-        Camera { width: 64, height: 48, fx: 60.0, fy: 60.0, cx: 32.0, cy: 24.0, c2w }
+        Camera { width: 64, height: 48, fx: 60.0, fy: 60.0, cx: 32.0, cy: 24.0, c2w, lens: Default::default() }
     }
 
     /// Rigid, OpenGL: orthonormal rotation with determinant +1, bottom row `0 0 0 1`.
@@ -502,6 +496,8 @@ mod tests {
         ndc.ndc = Some(crate::data::NdcParams { focal_x: 60.0, focal_y: 60.0, width: 64.0, height: 48.0, near: 1.0 });
         let e = camera_path(&ndc, PathKind::Orbit, 8).unwrap_err();
         assert!(e.to_string().contains("spiral or interpolate"), "{e}");
+        // A forward-facing capture that is not LLFF keeps no bounds: the closest one alone.
+        assert!((spiral_focus_depth(&ndc, &cams).unwrap() - 4.8).abs() < 1e-5);
         let mut empty = scene.clone();
         empty.split.train.clear();
         assert!(matches!(camera_path(&empty, PathKind::Spiral, 8), Err(PathError::NoTrainingViews { .. })));

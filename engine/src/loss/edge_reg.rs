@@ -149,6 +149,9 @@ pub struct RegConfig {
     pub warmup_steps: u64,
     /// `lambda1`, the weight of the photometric `L_c` (the paper: 1).
     pub lambda_color: f32,
+    /// Weight of the edge-guided depth-normal consistency ([`super::depth_normal`]) on
+    /// the same patches and schedule (0: off).
+    pub lambda_depth_normal: f32,
 }
 
 impl Default for RegConfig {
@@ -166,6 +169,7 @@ impl Default for RegConfig {
             start_step: 0,
             warmup_steps: 0,
             lambda_color: 1.0,
+            lambda_depth_normal: 0.0,
         }
     }
 }
@@ -182,7 +186,9 @@ impl RegConfig {
 
     /// Whether any term is switched on (with a nonzero weight).
     pub fn any(&self, dtu_scene: bool) -> bool {
-        (self.depth && self.lambda_depth > 0.0) || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
+        (self.depth && self.lambda_depth > 0.0)
+            || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
+            || self.lambda_depth_normal > 0.0
     }
 
     /// The weights of step `step` (schedule applied), `None` when nothing is active.
@@ -203,8 +209,9 @@ impl RegConfig {
             tau_normal: self.tau_normal,
             depth_target: self.depth_target,
             depth_estimate: self.depth_estimate,
+            lambda_depth_normal: ramp * self.lambda_depth_normal,
         };
-        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0).then_some(w)
+        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0).then_some(w)
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -212,6 +219,7 @@ impl RegConfig {
             ("lambda_depth", Some(self.lambda_depth)),
             ("lambda_normal", self.lambda_normal),
             ("lambda_color", Some(self.lambda_color)),
+            ("lambda_depth_normal", Some(self.lambda_depth_normal)),
             ("tau_depth", Some(self.tau_depth)),
             ("tau_normal", Some(self.tau_normal)),
         ];
@@ -239,6 +247,8 @@ pub struct EdgeRegWeights {
     pub tau_normal: f32,
     pub depth_target: DepthTarget,
     pub depth_estimate: DepthEstimate,
+    /// The depth-normal consistency's weight (0: off), on the same patches.
+    pub lambda_depth_normal: f32,
 }
 
 #[repr(C)]

@@ -17,6 +17,8 @@
 //! * [`boundary`]: the iBims-1 depth boundary error (DBE accuracy and completeness);
 //! * [`distance`]: the exact Euclidean distance transform both of the above use;
 //! * [`maps`]: error maps as RGB images for people (colours from [`crate::viz`]);
+//! * [`mesh`]: an exported mesh against the scene's ground-truth mesh (Chamfer
+//!   distance, F-score, precision, recall) over the surface the cameras see;
 //! * [`protocol`]: the evaluation protocol, which pixels of a view the image metrics
 //!   count by the scene's format (DTU masked, or full image), used by every evaluation.
 //!
@@ -38,6 +40,7 @@ pub mod geometry;
 pub mod image;
 pub mod lpips;
 pub mod maps;
+pub mod mesh;
 pub mod protocol;
 
 pub use boundary::{DbeParams, DepthBoundaryError, depth_boundary_error, depth_boundary_error_from_edges};

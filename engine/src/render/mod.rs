@@ -61,10 +61,10 @@
 //! the ray's terms. The background enters only through `u_i` (the `- bg` term), which
 //! is exactly the derivative of `(1 - opacity) bg`.
 //!
-//! **Priors.** The forward pass also stores per ray the distortion and occlusion
-//! measures of [`priors`] in [`RayAux`]; with [`Renderer::set_priors`] the backward
-//! adds their gradients (mip-NeRF 360's distortion loss, FreeNeRF's occlusion
-//! regularization) in the same pass.
+//! **Priors.** The forward pass also stores per ray the distortion, occlusion and
+//! orientation measures of [`priors`] in [`RayAux`]; with [`Renderer::set_priors`] the
+//! backward adds their gradients (mip-NeRF 360's distortion loss, FreeNeRF's occlusion
+//! regularization, Ref-NeRF's orientation penalty) in the same pass.
 //!
 //! # Invariants
 //! * The ranges obey [`crate::layout`]'s invariants and lie inside the field buffers;
@@ -80,7 +80,7 @@ pub mod reference;
 #[cfg(test)]
 mod tests;
 
-pub use priors::{PriorConfig, RayPriors};
+pub use priors::{PriorConfig, PriorTerms, RayPriors};
 
 use std::sync::Arc;
 
@@ -184,7 +184,8 @@ struct Params {
     distortion: f32,
     occlusion: f32,
     occlusion_end: f32,
-    _pad: [u32; 3],
+    orientation: f32,
+    _pad: [u32; 2],
 }
 
 /// The forward pass's per-ray (and optional per-sample) outputs.
@@ -258,7 +259,7 @@ impl Renderer {
     }
 
     fn params(&self, n_rays: u32, seed: u32) -> Params {
-        let (distortion, occlusion) = self.priors.coefficients();
+        let c = self.priors.coefficients();
         let (bg_mode, rgb) = match self.config.background {
             Background::Black => (0, [0.0; 3]),
             Background::Color { rgb } => (1, rgb),
@@ -270,9 +271,10 @@ impl Renderer {
             seed,
             background: [rgb[0], rgb[1], rgb[2], 0.0],
             t_threshold: self.config.transmittance_threshold,
-            distortion,
-            occlusion,
+            distortion: c.distortion,
+            occlusion: c.occlusion,
             occlusion_end: self.priors.occlusion_end,
+            orientation: c.orientation,
             ..Default::default()
         }
     }

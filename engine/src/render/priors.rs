@@ -1,13 +1,15 @@
 //! Sparse-view priors on a ray's sample weights and densities, evaluated inside the
 //! compositing kernels because they need every sample of a ray in order, which only
-//! the renderer walks: mip-NeRF 360's distortion loss and FreeNeRF's occlusion
-//! regularization. Both fight the fog and floaters that few views leave in space
-//! no training ray pins down.
+//! the renderer walks: mip-NeRF 360's distortion loss, FreeNeRF's occlusion
+//! regularization and Ref-NeRF's orientation penalty. The first two fight the fog and
+//! floaters that few views leave in space no training ray pins down; the third makes the
+//! analytic normals (the density gradient) face the camera wherever a ray puts weight.
 //!
 //! # The terms (per ray, over its `K` contributing samples, midpoints `m_i = t_i`)
 //! ```text
 //! distortion  D = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 dt_i
 //! occlusion   O = sum_{i : t_i < t_occ} sigma_i dt_i
+//! orientation R = sum_i w_i max(0, <n_i, d_i>)^2
 //! ```
 //! `D` is small when a ray's weight is one compact blob (a surface) and large when it is
 //! spread along the ray (fog, floaters in front of a surface). `O` is the optical
@@ -22,7 +24,14 @@
 //!                                                   as mip-NeRF 360's s-space)
 //! L_occ  = lambda_occ  / n  sum_r O_r / (f S)      (the mean density over the range,
 //!                                                   FreeNeRF's mean over its first samples)
+//! L_ori  = lambda_ori  / n  sum_r R_r              (Ref-NeRF's mean over rays)
 //! ```
+//! `n_i` is the field's unit analytic normal (outward: minus the normalised density
+//! gradient) and `d_i` the sample's unit ray direction, both in the field's space (NDC
+//! for LLFF: the map to NDC keeps which side of a surface a ray comes from). A normal
+//! facing away from the ray at a sample with weight is a density that falls toward the
+//! camera inside what the ray sees as surface: the penalty pushes density to rise along
+//! the ray up to the surface. Samples with a zero normal (zero gradient) pay nothing.
 //!
 //! # Gradients (in `composite.wgsl::backward`)
 //! With `W_<i, M_<i` the prefix sums of `w` and `w m` and `W_>i, M_>i` the suffix sums
@@ -31,14 +40,17 @@
 //! per-sample `u_i` of the compositing backward, and `sum_i w_i dD/dw_i = 2 D` (`D` is
 //! homogeneous of degree 2 in the weights) joins its suffix-sum total; so the one
 //! front-to-back pass stays one pass. `dO/dsigma_i = dt_i` goes to the density gradient
-//! directly.
+//! directly. `dR/dw_i = max(0, <n_i, d_i>)^2` joins `u_i` and `sum_i w_i dR/dw_i = R`
+//! the total (degree 1); `dR/dn_i = 2 w_i max(0, <n_i, d_i>) d_i` joins the normal
+//! gradient, which the field takes to its parameters through the normal's second-order
+//! backward (so the field must compute normals when the term is on).
 //!
-//! Invariants: the forward pass always stores `D` and `O` of every ray in
+//! Invariants: the forward pass always stores `D`, `O` and `R` of every ray in
 //! [`super::RayAux`] (with the renderer's `occlusion_end`); the backward adds the terms
 //! only with non-zero weights, so a renderer without priors computes exactly what it
 //! did before.
 
-/// The priors' settings in a run configuration (`[priors]`). Both off by default.
+/// The priors' settings in a run configuration (`[priors]`). All off by default.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PriorConfig {
@@ -49,17 +61,20 @@ pub struct PriorConfig {
     /// The occlusion range as a fraction of `far - near` from `near` (FreeNeRF: its
     /// first 10 of 128 samples, 0.08 of the range).
     pub occlusion_range: f32,
+    /// Weight of Ref-NeRF's orientation penalty on the analytic normals (0: off; Ref-NeRF
+    /// uses 0.1 with its predicted normals).
+    pub orientation: f32,
 }
 
 impl Default for PriorConfig {
     fn default() -> Self {
-        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08 }
+        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0 }
     }
 }
 
 impl PriorConfig {
     pub fn validate(&self) -> Result<(), String> {
-        for (name, v) in [("priors.distortion", self.distortion), ("priors.occlusion", self.occlusion)] {
+        for (name, v) in [("priors.distortion", self.distortion), ("priors.occlusion", self.occlusion), ("priors.orientation", self.orientation)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
             }
@@ -71,9 +86,9 @@ impl PriorConfig {
         Ok(())
     }
 
-    /// Whether either term is on.
+    /// Whether any term is on.
     pub fn active(&self) -> bool {
-        self.distortion > 0.0 || self.occlusion > 0.0
+        self.distortion > 0.0 || self.occlusion > 0.0 || self.orientation > 0.0
     }
 
     /// The kernel weights for batches of `n_rays` rays of a scene whose rays span
@@ -88,13 +103,16 @@ impl PriorConfig {
             distortion_scale: 1.0 / (n * span),
             occlusion_scale: 1.0 / (n * range),
             occlusion_end: if self.occlusion > 0.0 { near + range } else { f32::MIN },
+            lambda_orientation: self.orientation,
+            orientation_scale: 1.0 / n,
         }
     }
 }
 
 /// What the compositing kernels apply: the batch loss is
-/// `lambda_distortion distortion_scale sum_r D_r + lambda_occlusion occlusion_scale sum_r O_r`,
-/// with `O` over the samples whose ray parameter is below `occlusion_end`.
+/// `lambda_distortion distortion_scale sum_r D_r + lambda_occlusion occlusion_scale sum_r O_r
+/// + lambda_orientation orientation_scale sum_r R_r`, with `O` over the samples whose ray
+/// parameter is below `occlusion_end`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RayPriors {
     pub lambda_distortion: f32,
@@ -102,28 +120,61 @@ pub struct RayPriors {
     pub distortion_scale: f32,
     pub occlusion_scale: f32,
     pub occlusion_end: f32,
+    pub lambda_orientation: f32,
+    pub orientation_scale: f32,
 }
 
 impl Default for RayPriors {
     fn default() -> Self {
-        Self { lambda_distortion: 0.0, lambda_occlusion: 0.0, distortion_scale: 0.0, occlusion_scale: 0.0, occlusion_end: f32::MIN }
+        Self {
+            lambda_distortion: 0.0,
+            lambda_occlusion: 0.0,
+            distortion_scale: 0.0,
+            occlusion_scale: 0.0,
+            occlusion_end: f32::MIN,
+            lambda_orientation: 0.0,
+            orientation_scale: 0.0,
+        }
     }
 }
 
+/// The coefficients of the per-ray measures in the batch loss, or (from
+/// [`RayPriors::losses`]) the batch losses themselves without their lambdas.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PriorTerms {
+    pub distortion: f32,
+    pub occlusion: f32,
+    pub orientation: f32,
+}
+
 impl RayPriors {
-    /// The coefficients of the per-ray `D` and `O` in the batch loss.
-    pub fn coefficients(&self) -> (f32, f32) {
-        (self.lambda_distortion * self.distortion_scale, self.lambda_occlusion * self.occlusion_scale)
+    /// The coefficients of the per-ray `D`, `O` and `R` in the batch loss.
+    pub fn coefficients(&self) -> PriorTerms {
+        PriorTerms {
+            distortion: self.lambda_distortion * self.distortion_scale,
+            occlusion: self.lambda_occlusion * self.occlusion_scale,
+            orientation: self.lambda_orientation * self.orientation_scale,
+        }
     }
 
-    /// The unweighted batch losses `(L_dist, L_occ)` (without their lambdas) from the
-    /// forward pass's per-ray [`super::RayAux`].
-    pub fn losses(&self, aux: &[super::RayAux]) -> (f32, f32) {
-        let (mut d, mut o) = (0.0f64, 0.0f64);
+    /// Whether the field must compute normals for these priors (the orientation term).
+    pub fn needs_normals(&self) -> bool {
+        self.lambda_orientation > 0.0
+    }
+
+    /// The unweighted batch losses `L_dist`, `L_occ`, `L_ori` (without their lambdas) from
+    /// the forward pass's per-ray [`super::RayAux`].
+    pub fn losses(&self, aux: &[super::RayAux]) -> PriorTerms {
+        let (mut d, mut o, mut r) = (0.0f64, 0.0f64, 0.0f64);
         for a in aux {
             d += a.distortion as f64;
             o += a.occlusion as f64;
+            r += a.orientation as f64;
         }
-        ((self.distortion_scale as f64 * d) as f32, (self.occlusion_scale as f64 * o) as f32)
+        PriorTerms {
+            distortion: (self.distortion_scale as f64 * d) as f32,
+            occlusion: (self.occlusion_scale as f64 * o) as f32,
+            orientation: (self.orientation_scale as f64 * r) as f32,
+        }
     }
 }

@@ -20,6 +20,8 @@ pub struct RefSample {
     pub normal: [f64; 3],
     pub t: f64,
     pub dt: f64,
+    /// The ray's unit direction at the sample (only the orientation prior reads it).
+    pub dir: [f64; 3],
 }
 
 /// One ray's composited result with its per-sample intermediates.
@@ -89,10 +91,10 @@ pub fn composite(samples: &[RefSample], background: [f64; 3], threshold: f64) ->
     out
 }
 
-/// The [`super::priors`] measures `(D, O)` of a composited ray, straight from their
+/// The [`super::priors`] measures `(D, O, R)` of a composited ray, straight from their
 /// definitions (the double sum, not the kernel's prefix sums), over its `n_contrib`
 /// contributing samples; `O` counts the samples with `t < occlusion_end`.
-pub fn ray_priors(samples: &[RefSample], ray: &RefRay, occlusion_end: f64) -> (f64, f64) {
+pub fn ray_priors(samples: &[RefSample], ray: &RefRay, occlusion_end: f64) -> (f64, f64, f64) {
     let live = &samples[..ray.n_contrib];
     let w = &ray.weights;
     let mut d = 0.0;
@@ -103,7 +105,15 @@ pub fn ray_priors(samples: &[RefSample], ray: &RefRay, occlusion_end: f64) -> (f
         d += w[i] * w[i] * si.dt / 3.0;
     }
     let o = live.iter().filter(|s| s.t < occlusion_end).map(|s| s.sigma * s.dt).sum();
-    (d, o)
+    let r = live
+        .iter()
+        .zip(w)
+        .map(|(s, w)| {
+            let facing = (0..3).map(|k| s.normal[k] * s.dir[k]).sum::<f64>().max(0.0);
+            w * facing * facing
+        })
+        .sum();
+    (d, o, r)
 }
 
 /// The samples of ray `range` from the flat arrays the kernels read.
@@ -121,6 +131,7 @@ pub fn gather(
             normal: [0, 1, 2].map(|k| normal[s][k] as f64),
             t: samples[s].t as f64,
             dt: samples[s].dt as f64,
+            dir: samples[s].dir.map(|v| v as f64),
         })
         .collect()
 }
@@ -172,7 +183,7 @@ mod tests {
     use super::*;
 
     fn s(sigma: f64, t: f64, dt: f64) -> RefSample {
-        RefSample { sigma, rgb: [0.2, 0.5, 0.9], normal: [0.0, 0.0, 1.0], t, dt }
+        RefSample { sigma, rgb: [0.2, 0.5, 0.9], normal: [0.0, 0.0, 1.0], t, dt, dir: [0.0, 0.0, -1.0] }
     }
 
     #[test]

@@ -72,10 +72,18 @@ fn random_batch(rng: &mut SplitMix64, n_rays: u32, max_count: u32) -> HostBatch 
         // Per-ray density scale: some rays stay transparent, some terminate early.
         let scale = [0.3f32, 3.0, 30.0][rng.below(3) as usize];
         let mut t = rng.range_f32(0.1, 2.0);
+        // From a generator of its own, so the rest of the batch is what it was before
+        // rays had directions.
+        let dir = {
+            let mut d = SplitMix64::mixed(b.ranges.len() as u64);
+            let v = [d.range_f32(-1.0, 1.0), d.range_f32(-1.0, 1.0), d.range_f32(0.2, 1.0)];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
         for _ in 0..count {
             let dt = rng.range_f32(0.002, 0.08);
             t += dt * 0.5;
-            b.samples.push(GpuSample { pos: [rng.unit_f32(); 3], t, dir: [0.0, 0.0, 1.0], dt });
+            b.samples.push(GpuSample { pos: [rng.unit_f32(); 3], t, dir, dt });
             t += dt * 0.5 + if rng.unit_f32() < 0.3 { rng.range_f32(0.0, 0.1) } else { 0.0 };
             let u = rng.unit_f32();
             let sigma = if u < 0.25 { 0.0 } else if u < 0.9 { scale * rng.range_f32(0.0, 1.0) } else { scale * rng.range_f32(5.0, 50.0) };
@@ -368,15 +376,15 @@ fn background_shows_only_through_transparency() {
 }
 
 /// `dL/dx` by central differences of the `f64` reference, for one ray; the loss is
-/// `<g, output> + c_d D + c_o O` with the priors' `(c_d, c_o, occlusion_end)`.
-fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 3], i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
+/// `<g, output> + c_d D + c_o O + c_r R` with the priors' `(c_d, c_o, occlusion_end, c_r)`.
+fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 4], i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
     let h = 1e-6 * x.abs().max(1.0);
     let eval = |v: f64| {
         let mut ray = ray.to_vec();
         set(&mut ray[i], v);
         let r = reference::composite(&ray, bg, th);
-        let (d, o) = reference::ray_priors(&ray, &r, pri[2]);
-        (r.dot(g) + pri[0] * d + pri[1] * o, r.n_contrib)
+        let (d, o, ori) = reference::ray_priors(&ray, &r, pri[2]);
+        (r.dot(g) + pri[0] * d + pri[1] * o + pri[3] * ori, r.n_contrib)
     };
     let (lp, kp) = eval(x + h);
     let (lm, km) = eval(x - h);
@@ -395,8 +403,8 @@ fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
     let up = upload(&gpu, &h);
     let mut renderer = Renderer::new(&gpu, cfg).unwrap();
     renderer.set_priors(priors);
-    let (c_d, c_o) = priors.coefficients();
-    let pri = [c_d as f64, c_o as f64, priors.occlusion_end as f64];
+    let c = priors.coefficients();
+    let pri = [c.distortion as f64, c.occlusion as f64, priors.occlusion_end as f64, c.orientation as f64];
     let fwd = run_forward(&gpu, &renderer, &up, 5);
     let d_rays: Vec<RayOutput> = (0..h.n_rays())
         .map(|_| RayOutput {
@@ -435,14 +443,15 @@ fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
         // The size of the distortion's share of u_i as the kernel sums it: prefix and
         // suffix sums of w t (suffixes from `depth`), so its rounding is relative to
         // t_max opacity, not to the (smaller) differences m_i - m_j.
-        let (d, o) = reference::ray_priors(&ray, want, pri[2]);
+        let (d, o, ori) = reference::ray_priors(&ray, want, pri[2]);
         let t_max = ray.last().map_or(0.0, |l| l.t + l.dt);
         let u_dist = pri[0] * 4.0 * want.opacity * t_max;
-        let total: f64 = u.iter().zip(&want.weights).map(|(u, w)| u * w).sum::<f64>() + 2.0 * pri[0] * d;
+        let total: f64 = u.iter().zip(&want.weights).map(|(u, w)| u * w).sum::<f64>() + 2.0 * pri[0] * d + pri[3] * ori;
         let scale = u.iter().zip(&want.weights).map(|(u, w)| (u.abs() + u_dist) * w).sum::<f64>() + total.abs();
-        let (aux_d, aux_o) = (fwd.aux[r].distortion as f64, fwd.aux[r].occlusion as f64);
+        let (aux_d, aux_o, aux_r) = (fwd.aux[r].distortion as f64, fwd.aux[r].occlusion as f64, fwd.aux[r].orientation as f64);
         assert!((aux_d - d).abs() <= 1e-5 * d + 1e-7, "ray {r}: distortion gpu {aux_d} ref {d}");
         assert!((aux_o - o).abs() <= 1e-5 * o + 1e-7, "ray {r}: occlusion gpu {aux_o} ref {o}");
+        assert!((aux_r - ori).abs() <= 1e-5 * ori + 1e-7, "ray {r}: orientation gpu {aux_r} ref {ori}");
         let start = h.ranges[r].start as usize;
         for (i, s) in ray.iter().enumerate() {
             let idx = start + i;
@@ -494,7 +503,15 @@ fn backward_matches_finite_differences_colour_background() {
 fn backward_with_priors_matches_finite_differences() {
     // Weights large enough that the priors dominate some samples' gradients; the
     // occlusion range covers the first half of the rays' t (0.1 .. ~4).
-    let priors = RayPriors { lambda_distortion: 1.0, lambda_occlusion: 1.0, distortion_scale: 0.7, occlusion_scale: 0.3, occlusion_end: 1.2 };
+    let priors = RayPriors {
+        lambda_distortion: 1.0,
+        lambda_occlusion: 1.0,
+        distortion_scale: 0.7,
+        occlusion_scale: 0.3,
+        occlusion_end: 1.2,
+        lambda_orientation: 1.0,
+        orientation_scale: 0.5,
+    };
     check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4 }, priors, 14);
     check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 }, priors, 15);
 }
@@ -507,13 +524,14 @@ fn priors_off_leave_the_gradients_unchanged() {
     let up = upload(&gpu, &h);
     let plain = Renderer::new(&gpu, RenderConfig::default()).unwrap();
     let mut off = Renderer::new(&gpu, RenderConfig::default()).unwrap();
-    off.set_priors(RayPriors { occlusion_end: 1.0, distortion_scale: 1.0, occlusion_scale: 1.0, ..Default::default() });
+    off.set_priors(RayPriors { occlusion_end: 1.0, distortion_scale: 1.0, occlusion_scale: 1.0, orientation_scale: 1.0, ..Default::default() });
     let d_rays: Vec<RayOutput> = (0..h.n_rays()).map(|r| RayOutput { rgb: [0.3, -0.2, 0.1], opacity: 0.05 * (r % 3) as f32, normal: [0.1; 3], depth: -0.2 }).collect();
     let a = run_backward(&gpu, &plain, &up, &run_forward(&gpu, &plain, &up, 0), &d_rays, &sentinel_grads(h.density.len()), false);
     let fwd_off = run_forward(&gpu, &off, &up, 0);
     let b = run_backward(&gpu, &off, &up, &fwd_off, &d_rays, &sentinel_grads(h.density.len()), false);
     assert_eq!((a.density, a.rgb, a.normal), (b.density, b.rgb, b.normal));
     assert!(fwd_off.aux.iter().any(|x| x.occlusion > 0.0), "the forward still measures O");
+    assert!(fwd_off.aux.iter().any(|x| x.orientation > 0.0), "the forward still measures R");
 }
 
 #[test]
@@ -592,7 +610,7 @@ fn early_termination_is_the_same_forward_and_backward() {
         assert_eq!(zero, i >= 4, "sample {i}: {:?} {:?}", grads.density[i], grads.rgb[i]);
     }
     // Consistent with the truncated reference: dL/dsigma of sample 5 is 0 there too.
-    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, [0.0, 0.0, f64::MIN], 5, &|s, v| s.sigma = v, 3.0).unwrap();
+    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, [0.0, 0.0, f64::MIN, 0.0], 5, &|s, v| s.sigma = v, 3.0).unwrap();
     assert_eq!(fd5, 0.0);
 }
 

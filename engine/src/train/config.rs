@@ -34,13 +34,15 @@ pub struct SceneConfig {
     /// Background for RGBA images and for rendering; `None`: the scene's own
     /// (white for Blender-format scenes), black for scenes without one.
     pub background: Option<[f32; 3]>,
-    /// LLFF scenes: read `images_{llff_factor}` (`images` for 1); other formats ignore it.
-    pub llff_factor: u32,
+    /// Image downsampling factor (LLFF, COLMAP and nerfstudio scenes: `images_{N}`, or
+    /// the full images downsampled on load; [`LoadOptions::llff_factor`]); `None`: the
+    /// format's default (8 for LLFF, else 1), recorded by [`RunConfig::resolve_for`].
+    pub llff_factor: Option<u32>,
 }
 
 impl Default for SceneConfig {
     fn default() -> Self {
-        Self { path: PathBuf::new(), views: None, background: None, llff_factor: LoadOptions::default().llff_factor }
+        Self { path: PathBuf::new(), views: None, background: None, llff_factor: None }
     }
 }
 
@@ -288,6 +290,7 @@ impl RunConfig {
     /// Idempotent; every model, trained or loaded from a checkpoint, is built from it.
     pub fn resolve_for(&mut self, scene: &Scene) -> Result<(), TrainError> {
         self.resolve();
+        self.scene.llff_factor = Some(self.scene.llff_factor.unwrap_or(scene.format.default_downscale()));
         // The scene decides lambda3's default (0.001 on DTU).
         self.reg.lambda_normal = Some(self.reg.lambda_normal_for(scene.is_dtu()));
         self.regnerf.resolve_for(scene);
@@ -349,8 +352,10 @@ impl RunConfig {
         {
             return Err(format!("scene.background = {bg:?}: each channel must lie in [0, 1]"));
         }
-        if !(1..=64).contains(&self.scene.llff_factor) {
-            return Err(format!("scene.llff_factor = {} must lie in 1..=64", self.scene.llff_factor));
+        if let Some(f) = self.scene.llff_factor
+            && !(1..=64).contains(&f)
+        {
+            return Err(format!("scene.llff_factor = {f} must lie in 1..=64"));
         }
         self.edges.validate().map_err(|e| format!("edges: {e}"))?;
         self.reg.validate()?;
@@ -594,6 +599,7 @@ mod tests {
             ("sampler.resolution=0", "sampler"),
             ("field.n_levels=0", "n_levels"),
             ("priors.occlusion=-1", "priors.occlusion"),
+            ("priors.orientation=-0.1", "priors.orientation"),
         ] {
             let mut c = RunConfig::default();
             c.set(set).unwrap();

@@ -16,16 +16,18 @@
 //!   the step's StepPlan (loss weights, jitter)
 //! Pipeline::forward: random backgrounds, random-pose rays appended, ranges annealed
 //!   -> sampler (occupancy grid + BVH) -> samples -> field forward (+ analytic normals
-//!   when L_n is on) -> composite -> photometric loss L_c (+ edge-guided L_z, L_n on
-//!   the patches, + depth TV on the random-pose patches; rays cut by the sample
-//!   capacity dropped) -> composite backward (+ the distortion and occlusion priors)
+//!   when L_n, L_dn or the orientation prior is on) -> composite -> photometric loss
+//!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + depth TV on the random-pose
+//!   patches; rays cut by the sample capacity dropped) -> composite backward (+ the
+//!   distortion, occlusion and orientation priors)
 //!   -> loss readbacks
 //! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
 //! Pipeline::backward: zero grads -> field backward (second order through the normals)
 //! Trainer: grad norm / NaN check / clip -> Adam (GPU) -> StepStats
 //! ```
-//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_tv L_tv` plus the
-//! weighted priors (see [`crate::loss::edge_reg`], [`crate::loss::depth_tv`],
+//! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_dn L_dn +
+//! lambda_tv L_tv` plus the weighted priors (see [`crate::loss::edge_reg`],
+//! [`crate::loss::depth_normal`], [`crate::loss::depth_tv`],
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.
@@ -52,6 +54,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod evaluate;
+pub mod export;
 pub mod model;
 pub mod output;
 pub mod pipeline;
@@ -155,6 +158,11 @@ pub struct StepStats {
     /// 360's distortion and FreeNeRF's occlusion term.
     pub loss_distortion: f32,
     pub loss_occlusion: f32,
+    /// Ref-NeRF's orientation penalty on the analytic normals.
+    pub loss_orientation: f32,
+    /// The edge-guided depth-normal consistency (unweighted) and its weight this step.
+    pub loss_depth_normal: f32,
+    pub lambda_depth_normal: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -197,17 +205,20 @@ impl StepStats {
             sample_capacity,
             loss_distortion: losses.distortion,
             loss_occlusion: losses.occlusion,
+            loss_orientation: losses.orientation,
+            loss_depth_normal: losses.depth_normal,
+            lambda_depth_normal: plan.reg.map_or(0.0, |w| w.lambda_depth_normal),
         }
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -228,7 +239,10 @@ impl StepStats {
             self.occupied_fraction,
             self.sample_capacity,
             self.loss_distortion,
-            self.loss_occlusion
+            self.loss_occlusion,
+            self.loss_orientation,
+            self.loss_depth_normal,
+            self.lambda_depth_normal
         )
     }
 }
@@ -448,6 +462,7 @@ impl Trainer {
             reg: if patches { config.reg.weights_at(step, self.scene.is_dtu()) } else { None },
             tv: config.regnerf.tv_weight_at(step).filter(|_| self.pipeline.tv_rays() > 0),
             jitter: (crate::rng::SplitMix64::mixed(config.train.seed ^ step.rotate_left(17)).next_u32()) | 1,
+            orientation: config.priors.orientation > 0.0,
         }
     }
 

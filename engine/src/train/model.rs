@@ -13,7 +13,7 @@ use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
 use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
-use crate::layout::{FieldOutputs, GpuRay, RayOutput, SampleBatch};
+use crate::layout::{FieldOutputs, GpuRay, GpuSample, RayOutput, SampleBatch, SampleRange};
 
 use super::TrainError;
 use super::checkpoint::Checkpoint;
@@ -21,6 +21,9 @@ use super::config::{Backend, RunConfig};
 
 /// Rays rendered per chunk when rendering images.
 const RENDER_CHUNK: u32 = 4096;
+
+/// Points per GPU launch of [`Model::densities`] and [`Model::colors_at`].
+const POINT_CHUNK: usize = 1 << 18;
 
 /// A rendered view: per pixel, row-major.
 #[derive(Clone, Debug)]
@@ -302,6 +305,46 @@ impl Model {
         })();
         self.render_buffers = Some(bufs);
         result
+    }
+
+    /// Post-activation densities of the field at `points` (field space: world, or NDC
+    /// for forward-facing scenes), queried on the GPU in chunks of `POINT_CHUNK`;
+    /// `progress(done, total)` after each chunk.
+    pub fn densities(&self, gpu: &Gpu, points: &[glam::Vec3], progress: &mut dyn FnMut(usize, usize)) -> Result<Vec<f32>, TrainError> {
+        let chunk = POINT_CHUNK.min(points.len().max(1));
+        let pos = GpuBuffer::<[f32; 4]>::zeros(gpu, "density query points", chunk)?;
+        let out = GpuBuffer::<f32>::zeros(gpu, "density query values", chunk)?;
+        let mut values = Vec::with_capacity(points.len());
+        for part in points.chunks(chunk) {
+            pos.write(gpu, &part.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect::<Vec<_>>());
+            self.field.density(gpu, &pos, part.len() as u32, &out)?;
+            values.extend_from_slice(&out.read(gpu)?[..part.len()]);
+            progress(values.len(), points.len());
+        }
+        Ok(values)
+    }
+
+    /// The field's colour at each of `points` seen along the unit direction `dirs[i]`
+    /// (field space), through the field's own forward pass over a batch of one-sample
+    /// rays, in chunks of `POINT_CHUNK`.
+    pub fn colors_at(&mut self, gpu: &Gpu, points: &[glam::Vec3], dirs: &[glam::Vec3]) -> Result<Vec<[f32; 3]>, TrainError> {
+        assert_eq!(points.len(), dirs.len(), "colors_at: one direction per point");
+        let chunk = POINT_CHUNK.min(points.len().max(1));
+        let batch = SampleBatch::new(gpu, chunk as u32, chunk as u32)?;
+        let out = FieldOutputs::new(gpu, chunk as u32)?;
+        let mut colors = Vec::with_capacity(points.len());
+        for (part, dir) in points.chunks(chunk).zip(dirs.chunks(chunk)) {
+            let n = part.len();
+            let samples: Vec<GpuSample> =
+                part.iter().zip(dir).map(|(p, d)| GpuSample { pos: p.to_array(), t: 0.0, dir: d.to_array(), dt: 0.0 }).collect();
+            let ranges: Vec<SampleRange> = (0..n as u32).map(|i| SampleRange { start: i, count: 1 }).collect();
+            batch.samples.write(gpu, &samples);
+            batch.ranges.write(gpu, &ranges);
+            batch.count.write(gpu, &[n as u32, n as u32]);
+            self.field.forward(gpu, &batch, &out, false)?;
+            colors.extend(out.rgb_density.read(gpu)?[..n].iter().map(|v| [v[0], v[1], v[2]]));
+        }
+        Ok(colors)
     }
 
     /// Renders view `view` of `scene` with depth and normals.

@@ -35,7 +35,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::loss::{DepthNormal, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::DropTruncated;
 use crate::layout::{FieldGrads, GpuRay, GpuSample, RayOutput};
@@ -61,12 +61,15 @@ pub struct StepPlan {
     pub tv: Option<f32>,
     /// Seed of the sampler's jitter.
     pub jitter: u32,
+    /// Whether the orientation prior is on (it penalises the analytic normals).
+    pub orientation: bool,
 }
 
 impl StepPlan {
-    /// Whether the field computes analytic normals (the normal regularizer is on).
+    /// Whether the field computes analytic normals (the normal regularizer, the
+    /// depth-normal consistency or the orientation prior is on).
     pub fn normals(&self) -> bool {
-        self.reg.is_some_and(|w| w.lambda_normal > 0.0)
+        self.orientation || self.reg.is_some_and(|w| w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0)
     }
 }
 
@@ -81,9 +84,13 @@ pub struct BatchLosses {
     pub normal: f32,
     /// RegNeRF's depth TV on the random-pose patches.
     pub tv: f32,
-    /// The sparse-view priors: mip-NeRF 360's distortion and FreeNeRF's occlusion.
+    /// The sparse-view priors: mip-NeRF 360's distortion, FreeNeRF's occlusion and
+    /// Ref-NeRF's orientation penalty.
     pub distortion: f32,
     pub occlusion: f32,
+    pub orientation: f32,
+    /// The edge-guided depth-normal consistency `L_dn`.
+    pub depth_normal: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
     /// The priors' weights the losses entered with.
@@ -100,6 +107,8 @@ impl BatchLosses {
             (self.tv, "the depth TV"),
             (self.distortion, "the distortion prior"),
             (self.occlusion, "the occlusion prior"),
+            (self.orientation, "the orientation penalty"),
+            (self.depth_normal, "the depth-normal consistency"),
         ] {
             if !value.is_finite() {
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -109,15 +118,19 @@ impl BatchLosses {
     }
 
     /// The total loss with the weights of `plan`: `lambda1 L_c + lambda2 L_z + lambda3
-    /// L_n + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ`.
+    /// L_n + lambda_dn L_dn + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ +
+    /// lambda_ori L_ori`.
     pub fn total(&self, plan: &StepPlan) -> f32 {
-        let (lambda_depth, lambda_normal) = plan.reg.map_or((0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal));
+        let (lambda_depth, lambda_normal, lambda_dn) =
+            plan.reg.map_or((0.0, 0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal, w.lambda_depth_normal));
         plan.lambda_color * self.color
             + lambda_depth * self.depth
             + lambda_normal * self.normal
+            + lambda_dn * self.depth_normal
             + plan.tv.unwrap_or(0.0) * self.tv
             + self.priors.lambda_distortion * self.distortion
             + self.priors.lambda_occlusion * self.occlusion
+            + self.priors.lambda_orientation * self.orientation
     }
 }
 
@@ -141,6 +154,7 @@ pub struct Pipeline {
     photometric: Photometric,
     drop_truncated: DropTruncated,
     edge_reg: EdgeReg,
+    depth_normal: DepthNormal,
     depth_tv: DepthTv,
 }
 
@@ -178,6 +192,7 @@ impl Pipeline {
             photometric: Photometric::new(gpu, n_all)?,
             drop_truncated: DropTruncated::new(gpu)?,
             edge_reg: EdgeReg::new(gpu, n / 4)?,
+            depth_normal: DepthNormal::new(gpu, n / 4)?,
             depth_tv: DepthTv::new(gpu, n_tv)?,
         })
     }
@@ -235,7 +250,8 @@ impl Pipeline {
     }
 
     /// The field's backward pass over the last [`Pipeline::forward`]: its gradients
-    /// zeroed, then this batch's added (second order through the normals when `L_n` is on).
+    /// zeroed, then this batch's added (second order through the normals when `L_n` or
+    /// the orientation prior is on).
     pub fn backward(&self, gpu: &Gpu, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
         model.field.zero_grads(gpu);
         model.field.backward(gpu, &self.bufs.batch, &self.field_grads, plan.normals())?;
@@ -313,6 +329,10 @@ impl Pipeline {
         self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
+            if w.lambda_depth_normal > 0.0 {
+                let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
+                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, w.lambda_depth_normal, w.depth_estimate);
+            }
         }
         if let Some(lambda) = plan.tv {
             let r = &model.config.regnerf;
@@ -331,9 +351,24 @@ impl Pipeline {
         let rays_dropped = if cut { self.drop_truncated.dropped(gpu)? } else { 0 };
         let color = self.photometric.mse(gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
         let reg = if plan.reg.is_some() { self.edge_reg.losses(gpu, n / 4)? } else { EdgeRegLosses::default() };
+        let depth_normal = match plan.reg {
+            Some(w) if w.lambda_depth_normal > 0.0 => self.depth_normal.loss(gpu, n / 4)?,
+            _ => 0.0,
+        };
         let tv = if plan.tv.is_some() { self.depth_tv.loss(gpu, self.n_tv)? } else { 0.0 };
         let priors = *self.renderer.priors();
-        let (distortion, occlusion) = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { (0.0, 0.0) };
-        Ok(BatchLosses { color, depth: reg.depth, normal: reg.normal, tv, distortion, occlusion, rays_dropped, priors })
+        let p = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { Default::default() };
+        Ok(BatchLosses {
+            color,
+            depth: reg.depth,
+            normal: reg.normal,
+            tv,
+            distortion: p.distortion,
+            occlusion: p.occlusion,
+            orientation: p.orientation,
+            depth_normal,
+            rays_dropped,
+            priors,
+        })
     }
 }

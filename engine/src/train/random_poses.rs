@@ -36,7 +36,8 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
-use crate::data::paths::{average_pose, focus_depth, focus_point, look_at};
+use crate::data::camera::{facing_one_way, focus_point};
+use crate::data::paths::{average_pose, focus_depth, look_at};
 use crate::data::{Camera, Scene};
 use crate::layout::GpuRay;
 
@@ -61,10 +62,8 @@ impl PoseKind {
         if scene.is_dtu() {
             return PoseKind::Box;
         }
-        let axes: Vec<Vec3> = scene.train_views().map(|v| v.camera.forward()).collect();
-        let mean = axes.iter().copied().sum::<Vec3>().normalize_or_zero();
-        let facing_one_way = axes.iter().all(|a| a.dot(mean) >= 45f32.to_radians().cos());
-        if facing_one_way { PoseKind::Box } else { PoseKind::Sphere }
+        let cams: Vec<Camera> = scene.train_views().map(|v| v.camera).collect();
+        if facing_one_way(&cams, 45.0) { PoseKind::Box } else { PoseKind::Sphere }
     }
 }
 

@@ -15,6 +15,10 @@
 //!   overlay: the DBE's Canny edges of GT and predicted depth where the scene has GT
 //!   depth, else Canny edges of the GT and rendered images' luma.
 //!
+//! * mesh: where the scene has a `gt_mesh.ply` (the synthetic scenes), the run's mesh
+//!   (`export mesh` at `--mesh-resolution`, default level) against it: Chamfer distance
+//!   and F-score ([`edgenerf::metrics::mesh`]); `--no-mesh` skips it.
+//!
 //! `metrics.json` holds `metrics` (means over the views of every per-view figure,
 //! flattened to dotted names such as `depth.non_edge.abs_rel`, see
 //! [`flatten_view_metrics`]) and `views` (the per-view records).
@@ -29,8 +33,11 @@ use edgenerf::gpu::GpuOptions;
 use edgenerf::metrics::boundary::{DbeParams, dbe_edges, normalize_depth};
 use edgenerf::metrics::maps::{depth_error_map, edge_overlay, normal_error_map};
 use edgenerf::metrics::lpips::{Lpips, LpipsNet};
+use edgenerf::mesh::ply::read_ply;
+use edgenerf::metrics::mesh::{MeshMetricParams, MeshMetrics, mesh_metrics};
 use edgenerf::metrics::protocol::{Protocol, comparison_images};
 use edgenerf::metrics::{GeometryMetrics, ImageMetrics};
+use edgenerf::train::export::{MeshOptions, extract_mesh};
 use edgenerf::train::{RenderedView, evaluate_view};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -58,6 +65,17 @@ pub struct Args {
     /// that change the parameters' shapes are refused when the checkpoint loads.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+    /// Skip the mesh metrics (done by default when the scene has a gt_mesh.ply).
+    #[arg(long)]
+    no_mesh: bool,
+    /// Grid cells along the longest side of the box for the mesh metrics' export
+    /// (`export mesh --resolution`; its default level).
+    #[arg(long, default_value_t = 128, value_name = "N", value_parser = clap::value_parser!(u32).range(2..=1024))]
+    mesh_resolution: u32,
+    /// Density level of the mesh metrics' export (default: `export mesh`'s, ln 2 / the
+    /// run's sampler step).
+    #[arg(long, value_name = "L")]
+    mesh_level: Option<f32>,
 }
 
 /// `--lpips` values.
@@ -145,8 +163,12 @@ pub struct EvalReport {
     pub protocol: Protocol,
     /// Why LPIPS fields are null, where they are.
     pub notes: Vec<String>,
-    /// Means over the views of each flattened per-view figure.
+    /// Means over the views of each flattened per-view figure, and the mesh figures
+    /// (`mesh.chamfer`, `mesh.fscore`, ...) where computed.
     pub metrics: BTreeMap<String, f64>,
+    /// The exported mesh against the scene's ground-truth mesh (`None` without one,
+    /// or with `--no-mesh`).
+    pub mesh: Option<MeshMetrics>,
     pub views: Vec<ViewRecord>,
 }
 
@@ -266,6 +288,23 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         bail!("the {} split of {} has no view", args.split, run.scene.root.display());
     }
     let protocol = records[0].protocol;
+    let mesh = if args.no_mesh { None } else { mesh_metrics_of(&mut run, args.mesh_resolution, args.mesh_level)? };
+    let mut metrics = mean_metrics(&records);
+    if let Some(m) = &mesh {
+        let d = &m.distances;
+        for (k, x) in [
+            ("chamfer", d.chamfer),
+            ("accuracy", d.accuracy),
+            ("completeness", d.completeness),
+            ("precision", d.precision),
+            ("recall", d.recall),
+            ("fscore", d.fscore),
+        ] {
+            if x.is_finite() {
+                metrics.insert(format!("mesh.{k}"), x);
+            }
+        }
+    }
     let report = EvalReport {
         checkpoint: args.run.clone(),
         scene: run.scene.root.clone(),
@@ -274,7 +313,8 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         adapter: run.gpu.adapter().name.clone(),
         protocol,
         notes: lpips.notes,
-        metrics: mean_metrics(&records),
+        metrics,
+        mesh,
         views: records,
     };
     print_table(&report);
@@ -282,6 +322,21 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     std::fs::write(&path, serde_json::to_string_pretty(&report)?).with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {} and per-view renders and error maps to {}", path.display(), out.display());
     Ok(())
+}
+
+/// The scene's `gt_mesh.ply` against the run's mesh (`export mesh` at `resolution`
+/// and `level`), `None` where the scene has no ground-truth mesh. An empty mesh scores
+/// infinite distances, left out of `metrics` (JSON has no infinity).
+fn mesh_metrics_of(run: &mut crate::cmd::render::LoadedRun, resolution: u32, level: Option<f32>) -> anyhow::Result<Option<MeshMetrics>> {
+    let path = run.scene.root.join("gt_mesh.ply");
+    if !path.is_file() || run.scene.ndc.is_some() {
+        return Ok(None);
+    }
+    let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    let gt = read_ply(&bytes).with_context(|| format!("reading {} (--no-mesh skips the mesh metrics)", path.display()))?;
+    let opts = MeshOptions { resolution, level, bbox: None, keep_ndc: false };
+    let mesh = extract_mesh(&run.gpu, &mut run.model, &run.scene, &opts, &mut |_, _| {})?.mesh;
+    Ok(Some(mesh_metrics(&mesh, &gt, &run.scene, &MeshMetricParams::default())?))
 }
 
 /// The per-view table and the mean row.
@@ -325,4 +380,11 @@ fn print_table(report: &EvalReport) {
         row(&v.name, &flatten_view_metrics(v));
     }
     row("mean", &report.metrics);
+    if let Some(m) = &report.mesh {
+        let d = &m.distances;
+        println!(
+            "mesh vs gt_mesh.ply: Chamfer {:.4} (accuracy {:.4}, completeness {:.4}); F-score {:.3} at {:.4} (precision {:.3}, recall {:.3})",
+            d.chamfer, d.accuracy, d.completeness, d.fscore, d.threshold, d.precision, d.recall
+        );
+    }
 }

@@ -1,6 +1,7 @@
 //! `edgenerf info`: describe a scene directory and the Vulkan adapter in use.
 
 use anyhow::Context;
+use edgenerf::data::Lens;
 use edgenerf::gpu::{Gpu, GpuOptions};
 
 use super::SceneArgs;
@@ -38,6 +39,11 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if let Some(v) = scene.views.first() {
         let c = &v.camera;
         println!("intrinsics  fx {:.2} fy {:.2} cx {:.2} cy {:.2} (view 0)", c.fx, c.fy, c.cx, c.cy);
+        match c.lens {
+            Lens::Pinhole => {}
+            Lens::OpenCv { k, p } => println!("lens        OPENCV k1..k4 {k:?} p1 p2 {p:?} (view 0; distorted rays)"),
+            Lens::Fisheye { k } => println!("lens        OPENCV_FISHEYE k1..k4 {k:?} (view 0; distorted rays)"),
+        }
     }
     let has = |f: &dyn Fn(&edgenerf::data::View) -> bool| scene.views.iter().all(f);
     println!(

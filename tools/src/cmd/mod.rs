@@ -2,6 +2,7 @@
 pub mod bench;
 pub mod edges;
 pub mod eval;
+pub mod export;
 pub mod info;
 pub mod render;
 pub mod scenes;
@@ -16,13 +17,15 @@ use edgenerf::data::{LoadOptions, Scene};
 /// The scene a command reads: its directory and the sparse-view split.
 #[derive(clap::Args)]
 pub struct SceneArgs {
-    /// Scene directory (Blender/NeRF-synthetic, LLFF or DTU layout).
+    /// Scene directory (Blender/NeRF-synthetic, nerfstudio transforms.json, COLMAP
+    /// sparse model, LLFF or DTU layout).
     pub scene: PathBuf,
     /// Training views of the sparse-view split (default: all).
     #[arg(long, short = 'k')]
     pub views: Option<usize>,
-    /// LLFF scenes: read the images of images_N, downsampled by N (default 8; 1 reads
-    /// images/). Recorded in the run's config (scene.llff_factor).
+    /// Image downsampling factor (LLFF, COLMAP, nerfstudio): read images_N, or
+    /// downsample images/ by N on load when there is no images_N (default 8 for LLFF,
+    /// 1 otherwise). Recorded in the run's config (scene.llff_factor).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=64))]
     pub llff_factor: Option<u32>,
 }
@@ -30,10 +33,7 @@ pub struct SceneArgs {
 impl SceneArgs {
     /// Loads the scene with the split's `views` and default options otherwise.
     pub fn load(&self) -> anyhow::Result<Scene> {
-        let mut opts = LoadOptions { views: self.views, ..Default::default() };
-        if let Some(f) = self.llff_factor {
-            opts.llff_factor = f;
-        }
+        let opts = LoadOptions { views: self.views, llff_factor: self.llff_factor, ..Default::default() };
         Scene::load(&self.scene, &opts).with_context(|| format!("loading {}", self.scene.display()))
     }
 }

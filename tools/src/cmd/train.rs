@@ -95,8 +95,8 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     if args.input.views.is_some() {
         config.scene.views = args.input.views;
     }
-    if let Some(f) = args.input.llff_factor {
-        config.scene.llff_factor = f;
+    if args.input.llff_factor.is_some() {
+        config.scene.llff_factor = args.input.llff_factor;
     }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
@@ -285,6 +285,7 @@ struct Progress {
     /// Which prior terms the message shows.
     distortion: bool,
     occlusion: bool,
+    orientation: bool,
 }
 
 impl RunObserver for Progress {
@@ -306,6 +307,12 @@ impl RunObserver for Progress {
         }
         if self.occlusion {
             reg += &format!(" Locc {:.2e}", stats.loss_occlusion);
+        }
+        if self.orientation {
+            reg += &format!(" Lori {:.2e}", stats.loss_orientation);
+        }
+        if stats.lambda_depth_normal > 0.0 {
+            reg += &format!(" Ldn {:.2e}", stats.loss_depth_normal);
         }
         self.bar.set_message(format!(
             "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
@@ -370,6 +377,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         psnr_ema: None,
         distortion: config.priors.distortion > 0.0,
         occlusion: config.priors.occlusion > 0.0,
+        orientation: config.priors.orientation > 0.0,
     };
     interrupt::set_training(true);
     let result = run::train_run(&mut trainer, &args.out, &mut progress);

@@ -175,7 +175,7 @@ fn depth_tv_end_to_end_matches_finite_differences() {
                     .map(|s| {
                         let smp = &samples[s as usize];
                         let t = m.forward(smp.pos.map(|v| v as f64), smp.dir.map(|v| v as f64));
-                        render_ref::RefSample { sigma: t.sigma, rgb: t.rgb, normal: t.normal, t: smp.t as f64, dt: smp.dt as f64 }
+                        render_ref::RefSample { sigma: t.sigma, rgb: t.rgb, normal: t.normal, t: smp.t as f64, dt: smp.dt as f64, dir: smp.dir.map(|v| v as f64) }
                     })
                     .collect();
                 let ray = render_ref::composite(&ref_samples, [0.0; 3], 0.0);
