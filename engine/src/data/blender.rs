@@ -261,6 +261,7 @@ impl Loader<'_> {
             alpha: img.alpha,
             depth: None,
             normal: None,
+            train_mask: None,
         };
         if !self.opts.load_images {
             return Ok(view);

@@ -298,6 +298,7 @@ pub(super) fn load(
             alpha: img.alpha,
             depth: None,
             normal: None,
+            train_mask: None,
         });
     }
 

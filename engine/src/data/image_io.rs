@@ -385,6 +385,7 @@ impl ViewImage {
             alpha: self.alpha,
             depth: None,
             normal: None,
+            train_mask: None,
         }
     }
 }

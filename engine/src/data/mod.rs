@@ -154,6 +154,10 @@ pub struct View {
     pub depth: Option<Vec<f32>>,
     /// Ground-truth world-space unit normal per pixel, toward the camera.
     pub normal: Option<Vec<[f32; 3]>>,
+    /// Pixels training may draw (value > 0.5), one value per pixel: nerfstudio's
+    /// `mask_path` (0 = ignore the pixel). `None`: every pixel. Unlike [`View::mask`]
+    /// (evaluation), this only changes which pixels a batch draws.
+    pub train_mask: Option<Vec<f32>>,
 }
 
 /// A loaded scene.

@@ -24,7 +24,8 @@
 //!   `floor(linspace(0, n - 1, ceil(0.9 n)))`, the others test frames. With `k` views
 //!   the training frames are `k` of those ([`super::linspace_indices`]).
 //! * Per frame, optional: `mask_path` (grey image, 0 = pixel to ignore, nerfstudio's
-//!   meaning; loaded as the view's mask), `depth_file_path` (16-bit PNG or `.npy`
+//!   meaning; loaded as the view's mask and its training mask: batches draw only
+//!   pixels above 0.5), `depth_file_path` (16-bit PNG or `.npy`
 //!   z-depth times nerfstudio's `depth_unit_scale_factor` 1e-3, i.e. millimetres, stored
 //!   as the view's ground-truth ray distance `z / cos`). Each must be given for every
 //!   frame or none, and match the image size.
@@ -230,7 +231,9 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         if let Some(rel) = frame.mask_path.as_deref().filter(|_| opts.load_images) {
             let (p, resample) = aux_file(root, rel, "masks", factor);
             let (w, h, mask) = load_mask(&p)?;
-            view.mask = Some(fit(&p, &view.path, (w, h), size, resample, mask, false)?);
+            let mask = fit(&p, &view.path, (w, h), size, resample, mask, false)?;
+            view.train_mask = Some(mask.clone());
+            view.mask = Some(mask);
         }
         if let Some(rel) = frame.depth_file_path.as_deref().filter(|_| opts.load_images) {
             let (p, resample) = aux_file(root, rel, "depths", factor);

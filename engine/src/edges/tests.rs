@@ -34,6 +34,7 @@ fn scene(root: &Path, images: Vec<(&str, ImageRgb)>) -> Scene {
                 alpha: None,
                 depth: None,
                 normal: None,
+                train_mask: None,
             }
         })
         .collect();

@@ -105,8 +105,7 @@ impl DepthNormal {
 
     /// `L_dn` of the last launch over `n_patches` (waits for the GPU).
     pub fn loss(&self, gpu: &Gpu, n_patches: u32) -> Result<f32, GpuError> {
-        let per_patch = self.patch_loss.read(gpu)?;
-        Ok(per_patch[..n_patches as usize].iter().map(|&v| v as f64).sum::<f64>() as f32)
+        super::sum_of_terms(gpu, &self.patch_loss, n_patches)
     }
 }
 

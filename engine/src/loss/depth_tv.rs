@@ -116,8 +116,7 @@ impl DepthTv {
 
     /// The loss of the last launch over `n_rays` (waits for the GPU).
     pub fn loss(&self, gpu: &Gpu, n_rays: u32) -> Result<f32, GpuError> {
-        let terms = self.ray_loss.read(gpu)?;
-        Ok(terms[..n_rays as usize].iter().map(|&v| v as f64).sum::<f64>() as f32)
+        super::sum_of_terms(gpu, &self.ray_loss, n_rays)
     }
 }
 

@@ -17,3 +17,10 @@ pub use depth_normal::DepthNormal;
 pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;
+
+/// The sum (in `f64`) of the first `n` per-ray or per-patch loss terms a kernel wrote into
+/// `terms` (waits for the GPU).
+pub(crate) fn sum_of_terms(gpu: &crate::gpu::Gpu, terms: &crate::gpu::GpuBuffer<f32>, n: u32) -> Result<f32, crate::gpu::GpuError> {
+    let values = terms.read(gpu)?;
+    Ok(values[..n as usize].iter().map(|&v| v as f64).sum::<f64>() as f32)
+}

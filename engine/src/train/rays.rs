@@ -8,7 +8,9 @@
 //! Invariants: a ray's `[t_min, t_max]` is the scene's near/far range clipped to the
 //! scene AABB (world-space scenes) or `[0, 1]` (NDC scenes); a ray that misses the
 //! AABB gets `t_min == t_max` and therefore no samples. Pixel selection is a pure
-//! function of the seed and step (deterministic runs, exact resumes).
+//! function of the seed and step (deterministic runs, exact resumes). A view with a
+//! training mask ([`crate::data::View::train_mask`]) only gives pixels (whole patches)
+//! inside it: a draw outside is redrawn, up to [`MASK_DRAWS`] times.
 
 use glam::Vec3;
 
@@ -76,6 +78,16 @@ fn step_rng(seed: u64, step: u64) -> SplitMix64 {
     SplitMix64::mixed(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step)
 }
 
+/// Draws of a pixel (or patch corner) before one inside the view's training mask is
+/// given up on and the last draw kept: a mask that leaves almost nothing still trains.
+const MASK_DRAWS: u32 = 64;
+
+/// Whether pixel `(x, y)` of `view` may be drawn ([`crate::data::View::train_mask`]).
+fn drawable(scene: &Scene, view: usize, x: u32, y: u32) -> bool {
+    let v = &scene.views[view];
+    v.train_mask.as_ref().is_none_or(|m| m[(y * v.camera.width + x) as usize] > 0.5)
+}
+
 /// Draws `n` training pixels for `step`, uniform over the pixels of all training views
 /// (a pure function of `seed` and `step`).
 pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch {
@@ -85,8 +97,14 @@ pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch 
     let mut batch = PixelBatch::default();
     for _ in 0..n {
         let view = train[rng.below(train.len() as u64) as usize];
-        let x = rng.below(w as u64) as u32;
-        let y = rng.below(h as u64) as u32;
+        let (mut x, mut y) = (0, 0);
+        for _ in 0..MASK_DRAWS {
+            x = rng.below(w as u64) as u32;
+            y = rng.below(h as u64) as u32;
+            if drawable(scene, view, x, y) {
+                break;
+            }
+        }
         batch.push(scene, view, x, y);
     }
     batch
@@ -121,8 +139,15 @@ pub fn random_patches(
     for m in 0..n_patches as usize {
         let i = order[m % k];
         let view = train[i];
-        let x0 = rng.below((w - 1).max(1) as u64) as u32;
-        let y0 = rng.below((h - 1).max(1) as u64) as u32;
+        let (mut x0, mut y0) = (0, 0);
+        for _ in 0..MASK_DRAWS {
+            x0 = rng.below((w - 1).max(1) as u64) as u32;
+            y0 = rng.below((h - 1).max(1) as u64) as u32;
+            let inside = |dx: u32, dy: u32| drawable(scene, view, (x0 + dx).min(w - 1), (y0 + dy).min(h - 1));
+            if inside(0, 0) && inside(1, 0) && inside(0, 1) && inside(1, 1) {
+                break;
+            }
+        }
         for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
             let (x, y) = ((x0 + dx).min(w - 1), (y0 + dy).min(h - 1));
             let z_scale = batch.push(scene, view, x, y);
@@ -144,6 +169,46 @@ mod tests {
         assert!(ray_aabb(Vec3::new(0.0, 3.0, -3.0), Vec3::Z, aabb).is_none());
         let (a, _) = ray_aabb(Vec3::ZERO, Vec3::X, aabb).unwrap();
         assert_eq!(a, 0.0, "origin inside: starts at 0");
+    }
+
+    #[test]
+    fn batches_draw_only_pixels_inside_the_training_mask() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
+        let opts = crate::data::LoadOptions { views: Some(3), ..Default::default() };
+        let mut scene = Scene::load(&dir, &opts).unwrap();
+        let (w, h) = scene.image_size();
+        // Training may only use the left third of each view.
+        let allowed = |x: u32| x < w / 3;
+        for &v in &scene.split.train.clone() {
+            let mask = (0..w * h).map(|i| if allowed(i % w) { 1.0 } else { 0.0 }).collect();
+            scene.views[v].train_mask = Some(mask);
+        }
+        let ray_pixel = |scene: &Scene, r: &GpuRay| {
+            // The pixel a ray came from: its target colour identifies it only loosely, so
+            // match the ray against every training pixel's ray.
+            for &v in &scene.split.train {
+                for y in 0..h {
+                    for x in 0..w {
+                        let q = to_gpu_ray(scene, &scene.ray(v, x, y));
+                        if q.origin == r.origin && q.dir == r.dir {
+                            return x;
+                        }
+                    }
+                }
+            }
+            panic!("ray of no training pixel");
+        };
+        let pixels = random_pixels(&scene, 40, 7, 3);
+        assert!(pixels.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "single pixels");
+        let masks: Vec<EdgeMask> = scene.split.train.iter().map(|_| EdgeMask::all_non_edge(w, h)).collect();
+        let patches = random_patches(&scene, &masks, 10, 1, 7, 3);
+        assert!(patches.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "whole patches");
+        // Without the mask the same draws reach the rest of the image.
+        for &v in &scene.split.train.clone() {
+            scene.views[v].train_mask = None;
+        }
+        let free = random_pixels(&scene, 40, 7, 3);
+        assert!(free.rays.iter().any(|r| !allowed(ray_pixel(&scene, r))));
     }
 
     #[test]
