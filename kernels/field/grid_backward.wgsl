@@ -7,9 +7,10 @@
 //
 // A sample whose output gradients are all zero (every sample past a ray's early
 // termination, whose gradients the renderer zeroes) contributes exactly nothing: its
-// thread writes zero rows (so that the weight-gradient reduction reads finite zeros,
-// whatever a previous chunk left there) and returns without recomputing the field.
-// Samples of a ray are contiguous, so whole SIMD groups skip together.
+// deltas are exact zeros, so its rows add zeros to the weight gradients and its scatter
+// adds nothing. (It used to return early; on lavapipe that put the whole kernel under
+// an execution mask and saved nothing, see grid_forward.wgsl. Compacting the samples
+// that carry gradient is the way to skip them.)
 //
 // Scratch regions (vec4 offsets P.scratch[r], per-sample rows of dim4 vec4s, indexed
 // by the sample's position in the chunk):
@@ -18,6 +19,8 @@
 //   9 ac2 (width4)  10 delta_out (1)
 
 //#include "field/grid_lib.wgsl"
+// encode, the MLP products and the other vector code: generated per configuration.
+//#generated
 
 @group(0) @binding(3) var<storage, read> samples: array<Sample>;
 @group(0) @binding(4) var<storage, read> count: array<u32>;
@@ -43,65 +46,46 @@ fn region(r: u32) -> u32 {
     return P.scratch[r >> 2u][r & 3u];
 }
 
-fn store(r: u32, dim4: u32, local: u32, v: ptr<function, Vec64>) {
-    let b = region(r) + local * dim4;
-    for (var j = 0u; j < dim4; j++) {
-        scratch[b + j] = (*v)[j];
+// dL/dF[c] = w_c dL/de + g (grad w_c . dv) * beta_l * scale / extent for the 8 corners of
+// level `l` (the generated scatter_table_grads calls it per active level).
+fn scatter_level(l: u32, p: vec3<f32>, dek: vec2<f32>, gk: vec2<f32>, dv: vec3<f32>) {
+    let scale = P.levels[l].scale;
+    let pos = p * scale + vec3<f32>(0.5);
+    let fl = floor(pos);
+    let f = pos - fl;
+    let c0 = vec3<u32>(fl);
+    let sdv = dv * scale * normal_weight(l) * P.inv_extent;
+    for (var c = 0u; c < 8u; c++) {
+        let bits = corner_bits(c);
+        let cw = corner_weight(f, bits);
+        let coef = cw.w * dek + gk * dot(cw.dw, sdv);
+        let ent = corner_entry(l, c0 + bits);
+        let gi0 = 2u * ent;
+        let gi1 = gi0 + 1u;
+        if (coef.x != 0.0) {
+            atomicAddF32(table_grad, gi0, coef.x);
+        }
+        if (coef.y != 0.0) {
+            atomicAddF32(table_grad, gi1, coef.y);
+        }
     }
-}
-
-// Every per-sample row of the weight-gradient reduction, for sample `local` of the chunk.
-fn store_rows(
-    local: u32,
-    e: ptr<function, Vec64>,
-    d1: ptr<function, Vec64>,
-    a1: ptr<function, Vec64>,
-    dh: ptr<function, Vec64>,
-    dg: ptr<function, Vec64>,
-    xc: ptr<function, Vec64>,
-    dc1: ptr<function, Vec64>,
-    ac1: ptr<function, Vec64>,
-    dc2: ptr<function, Vec64>,
-    ac2: ptr<function, Vec64>,
-    dout: vec4<f32>,
-) {
-    let w4 = P.width4;
-    store(R_E, P.in4, local, e);
-    store(R_D1, w4, local, d1);
-    store(R_A1, w4, local, a1);
-    store(R_DH, 4u, local, dh);
-    store(R_DG, P.in4, local, dg);
-    store(R_XC, 8u, local, xc);
-    store(R_DC1, w4, local, dc1);
-    store(R_AC1, w4, local, ac1);
-    store(R_DC2, w4, local, dc2);
-    store(R_AC2, w4, local, ac2);
-    scratch[region(R_DO) + local] = dout;
 }
 
 @compute @workgroup_size(WG_SIZE)
 fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     P = P_buffer;
-    let local = thread_index(gid, nwg);
-    if (local >= P.chunk_len) {
-        return;
-    }
-    let i = P.chunk_start + local;
-    if (i >= min(count[0], P.n)) {
-        return;
-    }
-    let w4 = P.width4;
-    let d_out = d_rgb_density[i];
+    // No early return (see grid_forward.wgsl): a thread past the chunk or the count
+    // recomputes a valid sample with zero output gradients and writes nothing.
+    let t = thread_index(gid, nwg);
+    let n_valid = min(count[0], P.n);
+    let in_chunk = t < P.chunk_len && P.chunk_start + t < n_valid;
+    let local = min(t, max(P.chunk_len, 1u) - 1u);
+    let i = min(P.chunk_start + local, max(n_valid, 1u) - 1u);
+    let d_out = select(vec4<f32>(0.0), d_rgb_density[i], in_chunk);
     let with_normals = (P.flags & FLAG_NORMALS) != 0u;
-    let d_n = select(vec3<f32>(0.0), d_normal[i].xyz, with_normals);
-    if (all(d_out == vec4<f32>(0.0)) && all(d_n == vec3<f32>(0.0))) {
-        var zero: Vec64;
-        store_rows(local, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, &zero, vec4<f32>(0.0));
-        return;
-    }
     let smp = samples[i];
     let up = to_unit(smp.pos);
-    let normal_grads = with_normals && up.inside;
+    let normal_grads = with_normals && up.inside && in_chunk;
 
     // Forward recomputation.
     var e: Vec64;
@@ -120,16 +104,9 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     // Colour MLP backward.
     let dout = vec4<f32>(d_out.xyz * rgb * (vec3<f32>(1.0) - rgb), 0.0);
     var dc2: Vec64;
-    for (var j4 = 0u; j4 < w4; j4++) {
-        dc2[j4] = weights[P.c3 + j4] * dout.x + weights[P.c3 + w4 + j4] * dout.y
-            + weights[P.c3 + 2u * w4 + j4] * dout.z;
-    }
-    relu_mask_in_place(&dc2, &ac2, w4);
     var dc1: Vec64;
-    mat_t_vec(P.c2, w4, w4, &dc2, &dc1);
-    relu_mask_in_place(&dc1, &ac1, w4);
     var dh: Vec64;
-    mat_t_vec(P.c1, w4, 8u, &dc1, &dh);
+    color_backward(dout, &ac1, &ac2, &dc1, &dc2, &dh);
 
     // Density output: first order, then the normal path (second order).
     var dh0 = 0.0;
@@ -151,52 +128,21 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
             let du = -(c - n * dot(n, c)) / len;
             dv = s1 * du;
             dh0 += density_act_d2(h0) * dot(v, du);
-            for (var l = 0u; l < P.n_levels; l++) {
-                let comp = (l & 1u) * 2u;
-                dg[l >> 1u][comp] = dot(jac[2u * l], dv);
-                dg[l >> 1u][comp + 1u] = dot(jac[2u * l + 1u], dv);
-            }
+            normal_dg(&jac, dv, &dg);
         }
     }
     dh[0].x += dh0;
 
-    // Density MLP backward.
+    // Density MLP backward, then the hash features.
     var d1: Vec64;
-    mat_t_vec(P.w2, 4u, w4, &dh, &d1);
-    relu_mask_in_place(&d1, &a1, w4);
     var de: Vec64;
-    mat_t_vec(P.w1, w4, P.in4, &d1, &de);
+    density_backward(&dh, &a1, &d1, &de);
+    scatter_table_grads(up.p, &de, &g, dv);
 
-    // Hash features: dL/dF[c] = w_c dL/de + g (grad w_c . dv) * beta_l * scale / extent.
-    for (var l = 0u; l < P.n_levels; l++) {
-        if (!level_active(l)) {
-            continue;
-        }
-        let scale = P.levels[l].scale;
-        let pos = up.p * scale + vec3<f32>(0.5);
-        let fl = floor(pos);
-        let f = pos - fl;
-        let c0 = vec3<u32>(fl);
-        let comp = (l & 1u) * 2u;
-        let dek = vec2<f32>(de[l >> 1u][comp], de[l >> 1u][comp + 1u]);
-        let gk = vec2<f32>(g[l >> 1u][comp], g[l >> 1u][comp + 1u]);
-        let sdv = dv * scale * normal_weight(l) * P.inv_extent;
-        for (var c = 0u; c < 8u; c++) {
-            let bits = corner_bits(c);
-            let cw = corner_weight(f, bits);
-            let coef = cw.w * dek + gk * dot(cw.dw, sdv);
-            let ent = corner_entry(l, c0 + bits);
-            let gi0 = 2u * ent;
-            let gi1 = gi0 + 1u;
-            if (coef.x != 0.0) {
-                atomicAddF32(table_grad, gi0, coef.x);
-            }
-            if (coef.y != 0.0) {
-                atomicAddF32(table_grad, gi1, coef.y);
-            }
-        }
+    // Per-sample rows for the weight gradients. A sample whose output gradients are all
+    // zero (past its ray's early termination) has exactly zero deltas here, so its rows
+    // add exact zeros to the weight gradients and its scatter adds nothing.
+    if (in_chunk) {
+        store_rows(local, &e, &d1, &a1, &dh, &dg, &xc, &dc1, &ac1, &dc2, &ac2, dout);
     }
-
-    // Per-sample rows for the weight gradients.
-    store_rows(local, &e, &d1, &a1, &dh, &dg, &xc, &dc1, &ac1, &dc2, &ac2, dout);
 }

@@ -5,6 +5,8 @@
 // |grad_x sigma| <= normal_eps or outside the AABB).
 
 //#include "field/grid_lib.wgsl"
+// encode, the MLP products and the other vector code: generated per configuration.
+//#generated
 
 @group(0) @binding(3) var<storage, read> samples: array<Sample>;
 @group(0) @binding(4) var<storage, read> count: array<u32>;
@@ -14,10 +16,14 @@
 @compute @workgroup_size(WG_SIZE)
 fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     P = P_buffer;
-    let i = thread_index(gid, nwg);
-    if (i >= min(count[0], P.n)) {
-        return;
-    }
+    // No early return: threads past the count compute the last sample again and write
+    // nothing. Code after a divergent return runs under an execution mask on lavapipe,
+    // where every weight read then becomes a per-lane gather instead of one broadcast
+    // load (the MLPs ran 2x slower).
+    let n_valid = min(count[0], P.n);
+    let t = thread_index(gid, nwg);
+    let valid = t < n_valid;
+    let i = min(t, max(n_valid, 1u) - 1u);
     let smp = samples[i];
     let up = to_unit(smp.pos);
     let normals = (P.flags & FLAG_NORMALS) != 0u;
@@ -29,16 +35,15 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var xc: Vec64;
     density_mlp(&e, &a1, &xc);
     let h0 = xc[0].x;
-    var sigma = 0.0;
-    if (up.inside) {
-        sigma = density_act(h0);
-    }
+    let sigma = select(0.0, density_act(h0), up.inside);
 
     sh_encode(smp.dir, &xc);
     var ac1: Vec64;
     var ac2: Vec64;
     let o = color_mlp(&xc, &ac1, &ac2);
-    out_rgb_density[i] = vec4<f32>(sigmoid3(o), sigma);
+    if (valid) {
+        out_rgb_density[i] = vec4<f32>(sigmoid3(o), sigma);
+    }
 
     if (normals) {
         var n = vec3<f32>(0.0);
@@ -51,6 +56,8 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
                 n = -u / len;
             }
         }
-        out_normal[i] = vec4<f32>(n, 0.0);
+        if (valid) {
+            out_normal[i] = vec4<f32>(n, 0.0);
+        }
     }
 }

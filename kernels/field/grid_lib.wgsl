@@ -13,6 +13,12 @@
 //   P.w1 [width][in_pad] at w1, P.w2 [16][width] at w2, P.c1 [width][32] at c1,
 //   P.c2 [width][width] at c2, P.c3 [4][width] at c3 (row 3 is padding, always 0).
 // * Per-thread vectors live in `Vec64` (64 floats); only the first n/4 entries are used.
+//
+// The vector code (encode, both MLPs, the normal's g and J^T g, the backward products,
+// the scatter and the scratch stores) is generated per configuration and appended to
+// each kernel when its pipeline is built (engine/src/field/grid/codegen.rs): there
+// every width, level count and weight offset is a constant, so per-sample arrays are
+// only ever indexed by constants. Code here and in the kernels must keep that rule.
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
@@ -133,107 +139,42 @@ fn normal_weight(l: u32) -> f32 {
     return P.normal_weights[l >> 2u][l & 3u];
 }
 
-// Writes e (2 features per level, zero for inactive levels and the padding) and, when
-// `want_jac`, the normal path's Jacobian beta_l de/dx per encoding dimension (world
-// units; beta_l = 1 for every level gives the exact density gradient).
-fn encode(p: vec3<f32>, want_jac: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {
-    for (var k4 = 0u; k4 < P.in4; k4++) {
-        (*e)[k4] = vec4<f32>(0.0);
-    }
-    for (var l = 0u; l < P.n_levels; l++) {
-        if (!level_active(l)) {
-            (*jac)[2u * l] = vec3<f32>(0.0);
-            (*jac)[2u * l + 1u] = vec3<f32>(0.0);
-            continue;
-        }
-        let scale = P.levels[l].scale;
-        let pos = p * scale + vec3<f32>(0.5);
-        let fl = floor(pos);
-        let f = pos - fl;
-        let c0 = vec3<u32>(fl);
-        var val = vec2<f32>(0.0);
-        var gx = vec2<f32>(0.0);
-        var gy = vec2<f32>(0.0);
-        var gz = vec2<f32>(0.0);
-        for (var c = 0u; c < 8u; c++) {
-            let bits = corner_bits(c);
-            let cw = corner_weight(f, bits);
-            let feat = table[corner_entry(l, c0 + bits)];
-            val += cw.w * feat;
-            gx += cw.dw.x * feat;
-            gy += cw.dw.y * feat;
-            gz += cw.dw.z * feat;
-        }
-        let comp = (l & 1u) * 2u;
-        (*e)[l >> 1u][comp] = val.x;
-        (*e)[l >> 1u][comp + 1u] = val.y;
-        if (want_jac) {
-            let sc = scale * normal_weight(l) * P.inv_extent;
-            (*jac)[2u * l] = vec3<f32>(gx.x, gy.x, gz.x) * sc;
-            (*jac)[2u * l + 1u] = vec3<f32>(gx.y, gy.y, gz.y) * sc;
-        }
-    }
+// One level's share of the encoding: its 2 features and, when `want_jac`, the normal
+// path's Jacobian rows beta_l de/dx (world units; beta_l = 1 for every level gives the
+// exact density gradient; zero without `want_jac`). The generated `encode`
+// (engine/src/field/grid/codegen.rs) calls it for every active level with `l` a constant.
+struct LevelEncoding {
+    val: vec2<f32>,
+    jac0: vec3<f32>,
+    jac1: vec3<f32>,
 }
 
-// y = W x, W with 4*rows4 rows and row stride cols4 (vec4) at vec4 offset `off`.
-fn mat_vec(off: u32, rows4: u32, cols4: u32, x: ptr<function, Vec64>, y: ptr<function, Vec64>) {
-    for (var r4 = 0u; r4 < rows4; r4++) {
-        let b = off + 4u * r4 * cols4;
-        var acc = vec4<f32>(0.0);
-        for (var c4 = 0u; c4 < cols4; c4++) {
-            let xv = (*x)[c4];
-            acc += vec4<f32>(
-                dot(weights[b + c4], xv),
-                dot(weights[b + cols4 + c4], xv),
-                dot(weights[b + 2u * cols4 + c4], xv),
-                dot(weights[b + 3u * cols4 + c4], xv),
-            );
-        }
-        (*y)[r4] = acc;
+fn encode_level(l: u32, p: vec3<f32>, want_jac: bool) -> LevelEncoding {
+    let scale = P.levels[l].scale;
+    let pos = p * scale + vec3<f32>(0.5);
+    let fl = floor(pos);
+    let f = pos - fl;
+    let c0 = vec3<u32>(fl);
+    var val = vec2<f32>(0.0);
+    var gx = vec2<f32>(0.0);
+    var gy = vec2<f32>(0.0);
+    var gz = vec2<f32>(0.0);
+    for (var c = 0u; c < 8u; c++) {
+        let bits = corner_bits(c);
+        let cw = corner_weight(f, bits);
+        let feat = table[corner_entry(l, c0 + bits)];
+        val += cw.w * feat;
+        gx += cw.dw.x * feat;
+        gy += cw.dw.y * feat;
+        gz += cw.dw.z * feat;
     }
-}
-
-// y = W^T d (same W layout as mat_vec).
-fn mat_t_vec(off: u32, rows4: u32, cols4: u32, d: ptr<function, Vec64>, y: ptr<function, Vec64>) {
-    for (var c4 = 0u; c4 < cols4; c4++) {
-        var acc = vec4<f32>(0.0);
-        for (var r4 = 0u; r4 < rows4; r4++) {
-            let b = off + 4u * r4 * cols4 + c4;
-            let dv = (*d)[r4];
-            acc += weights[b] * dv.x + weights[b + cols4] * dv.y + weights[b + 2u * cols4] * dv.z
-                + weights[b + 3u * cols4] * dv.w;
-        }
-        (*y)[c4] = acc;
+    var r = LevelEncoding(val, vec3<f32>(0.0), vec3<f32>(0.0));
+    if (want_jac) {
+        let sc = scale * normal_weight(l) * P.inv_extent;
+        r.jac0 = vec3<f32>(gx.x, gy.x, gz.x) * sc;
+        r.jac1 = vec3<f32>(gx.y, gy.y, gz.y) * sc;
     }
-}
-
-fn relu_in_place(x: ptr<function, Vec64>, n4: u32) {
-    for (var j4 = 0u; j4 < n4; j4++) {
-        (*x)[j4] = max((*x)[j4], vec4<f32>(0.0));
-    }
-}
-
-// d <- d * relu'(z) where a = relu(z) (relu'(0) = 0).
-fn relu_mask_in_place(d: ptr<function, Vec64>, a: ptr<function, Vec64>, n4: u32) {
-    for (var j4 = 0u; j4 < n4; j4++) {
-        (*d)[j4] = select(vec4<f32>(0.0), (*d)[j4], (*a)[j4] > vec4<f32>(0.0));
-    }
-}
-
-// Density MLP: a1 = relu(P.w1 e), h = P.w2 a1 (16 outputs, h[0].x is the pre-activation density).
-fn density_mlp(e: ptr<function, Vec64>, a1: ptr<function, Vec64>, h: ptr<function, Vec64>) {
-    mat_vec(P.w1, P.width4, P.in4, e, a1);
-    relu_in_place(a1, P.width4);
-    mat_vec(P.w2, 4u, P.width4, a1, h);
-}
-
-// Pre-activation density only (occupancy queries): P.w2 row 0 dotted with a1.
-fn density_h0(a1: ptr<function, Vec64>) -> f32 {
-    var s = 0.0;
-    for (var j4 = 0u; j4 < P.width4; j4++) {
-        s += dot(weights[P.w2 + j4], (*a1)[j4]);
-    }
-    return s;
+    return r;
 }
 
 // sigma = act(h0 + density_bias); the derivatives below are d/dh0 of the same.
@@ -284,42 +225,6 @@ fn sh_encode(dir: vec3<f32>, x: ptr<function, Vec64>) {
         1.4453057213202769 * d.z * (xx - yy), 0.59004358992664352 * d.x * (3.0 * yy - xx));
 }
 
-// Colour MLP on xc = [h (16), sh (16)]: ac1 = relu(P.c1 xc), ac2 = relu(P.c2 ac1); returns
-// the pre-sigmoid output (w = 0).
-fn color_mlp(xc: ptr<function, Vec64>, ac1: ptr<function, Vec64>, ac2: ptr<function, Vec64>) -> vec4<f32> {
-    mat_vec(P.c1, P.width4, 8u, xc, ac1);
-    relu_in_place(ac1, P.width4);
-    mat_vec(P.c2, P.width4, P.width4, ac1, ac2);
-    relu_in_place(ac2, P.width4);
-    var s = vec4<f32>(0.0);
-    for (var j4 = 0u; j4 < P.width4; j4++) {
-        let a = (*ac2)[j4];
-        let b = P.c3 + j4;
-        s += vec4<f32>(dot(weights[b], a), dot(weights[b + P.width4], a), dot(weights[b + 2u * P.width4], a), 0.0);
-    }
-    return s;
-}
-
 fn sigmoid3(o: vec4<f32>) -> vec3<f32> {
     return vec3<f32>(1.0) / (vec3<f32>(1.0) + exp(-o.xyz));
-}
-
-// g = dh0/de = P.w1^T (relu'(z1) * P.w2[0, :]).
-fn density_dir(a1: ptr<function, Vec64>, g: ptr<function, Vec64>) {
-    var q: Vec64;
-    for (var j4 = 0u; j4 < P.width4; j4++) {
-        q[j4] = select(vec4<f32>(0.0), weights[P.w2 + j4], (*a1)[j4] > vec4<f32>(0.0));
-    }
-    mat_t_vec(P.w1, P.width4, P.in4, &q, g);
-}
-
-// v = J^T g = sum_k g_k de_k/dx.
-fn jac_t_vec(g: ptr<function, Vec64>, jac: ptr<function, Jac64>) -> vec3<f32> {
-    var v = vec3<f32>(0.0);
-    for (var l = 0u; l < P.n_levels; l++) {
-        let gv = (*g)[l >> 1u];
-        let comp = (l & 1u) * 2u;
-        v += gv[comp] * (*jac)[2u * l] + gv[comp + 1u] * (*jac)[2u * l + 1u];
-    }
-    return v;
 }

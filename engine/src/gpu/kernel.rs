@@ -40,9 +40,18 @@
 //! storage read at a uniform address is a single broadcast load
 //! (`field/grid_lib.wgsl`).
 //!
-//! Loop bounds as pipeline `override` constants were measured and rejected for the
-//! grid field: lavapipe then unrolls the level and width loops completely, compiles
-//! for seconds and runs the field 1.2-1.7x slower.
+//! # Generated code
+//! A kernel whose file has a line `//#generated` is incomplete on its own: its owner
+//! appends WGSL generated for the configuration in use (functions the file calls) and
+//! builds it with [`Gpu::specialized_kernel`], which caches one pipeline per distinct
+//! text. The hash-grid field does so (`field/grid/codegen.rs`) so that its widths,
+//! level counts and weight offsets are constants; pipeline `override` constants were
+//! measured and rejected for it (lavapipe then unrolls every loop, the 8-corner loops
+//! included, compiles for seconds and runs the field 1.2-1.7x slower). The owner's
+//! tests validate every generated variant with [`validate_with`] and
+//! [`tests::portability_problems`]; this module's tests skip such files.
+//!
+//! [`Gpu::specialized_kernel`]: super::Gpu::specialized_kernel
 
 use std::borrow::Cow;
 
@@ -93,10 +102,25 @@ pub fn kernel_source(name: &str) -> Option<&'static str> {
     KERNEL_SOURCES.iter().find(|(n, _)| *n == name).map(|(_, s)| *s)
 }
 
+/// The line that marks a kernel file as completed by generated code (module doc).
+pub const GENERATED_MARKER: &str = "//#generated";
+
+/// Whether kernel file `name` is completed by generated code (module doc).
+pub fn needs_generated_code(name: &str) -> bool {
+    kernel_source(name).is_some_and(|s| s.lines().any(|l| l.trim() == GENERATED_MARKER))
+}
+
 /// Applies the include and float-atomic steps described in the module doc.
 pub fn preprocess(name: &str, float_atomics: bool) -> Result<String, GpuError> {
+    preprocess_with(name, float_atomics, "")
+}
+
+/// [`preprocess`] of kernel file `name` followed by `generated` (module doc, "Generated
+/// code"; empty for a complete file).
+pub fn preprocess_with(name: &str, float_atomics: bool, generated: &str) -> Result<String, GpuError> {
     let mut included = Vec::new();
-    let body = expand_includes(name, &mut included)?;
+    let mut body = expand_includes(name, &mut included)?;
+    body += generated;
     let uses_atomics = body.contains("AtomicF32") || body.contains("atomicAddF32");
     let mut out = String::new();
     if uses_atomics {
@@ -187,7 +211,12 @@ fn split_call_args(s: &str) -> Option<(Vec<&str>, usize)> {
 /// Parses and validates a preprocessed kernel with naga (all validation flags), as a
 /// device with or without `SHADER_FLOAT32_ATOMIC` would need it.
 pub fn validate(name: &str, float_atomics: bool) -> Result<naga::Module, GpuError> {
-    let src = preprocess(name, float_atomics)?;
+    validate_with(name, float_atomics, "")
+}
+
+/// [`validate`] of kernel file `name` completed by `generated` (module doc).
+pub fn validate_with(name: &str, float_atomics: bool, generated: &str) -> Result<naga::Module, GpuError> {
+    let src = preprocess_with(name, float_atomics, generated)?;
     let module = naga::front::wgsl::parse_str(&src)
         .map_err(|e| GpuError::Shader { kernel: name.to_string(), message: e.emit_to_string_with_path(&src, name) })?;
     let caps = if float_atomics {
@@ -225,11 +254,11 @@ impl KernelSpec {
 }
 
 impl Kernel {
-    pub(super) fn build(gpu: &Gpu, spec: &KernelSpec) -> Result<Kernel, GpuError> {
+    pub(super) fn build(gpu: &Gpu, spec: &KernelSpec, generated: &str) -> Result<Kernel, GpuError> {
         // Validate first: naga's messages name the file and line.
-        validate(spec.file, gpu.float_atomics())?;
+        validate_with(spec.file, gpu.float_atomics(), generated)?;
         spec.check_limits(gpu.limits())?;
-        let src = preprocess(spec.file, gpu.float_atomics())?;
+        let src = preprocess_with(spec.file, gpu.float_atomics(), generated)?;
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(spec.file),
             source: wgpu::ShaderSource::Wgsl(Cow::Owned(src)),
@@ -363,14 +392,39 @@ pub fn grid_1d(threads: u32, max_per_dim: u32) -> [u32; 3] {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// The kernel files that are complete on their own (module doc, "Generated code").
+    fn complete_kernels() -> impl Iterator<Item = &'static str> {
+        KERNEL_SOURCES.iter().map(|(n, _)| *n).filter(|n| !needs_generated_code(n))
+    }
+
+    /// What keeps kernel `name` (completed by `generated`) from running everywhere we
+    /// test: naga validation on either float-atomic path, a uniform buffer that is not a
+    /// constant vec4 table (see the tests below), an entry point over SwiftShader's
+    /// storage-buffer limit. Empty when none.
+    pub(crate) fn portability_problems(name: &str, generated: &str) -> Vec<String> {
+        let mut problems = Vec::new();
+        for native in [true, false] {
+            if let Err(e) = validate_with(name, native, generated) {
+                problems.push(format!("{name} (native float atomics: {native}):\n{e}"));
+            }
+        }
+        if !problems.is_empty() {
+            return problems;
+        }
+        let module = validate_with(name, true, generated).expect("validated above");
+        problems.extend(non_table_uniforms(name, &module));
+        problems.extend(storage_buffers_over_limit(name, &module));
+        problems
+    }
 
     #[test]
     fn every_kernel_validates_on_both_atomic_paths() {
         assert!(!KERNEL_SOURCES.is_empty(), "no kernels embedded");
         let mut failures = Vec::new();
-        for (name, _) in KERNEL_SOURCES {
+        for name in complete_kernels() {
             for native in [true, false] {
                 if let Err(e) = validate(name, native) {
                     failures.push(format!("{name} (native float atomics: {native}):\n{e}"));
@@ -380,6 +434,53 @@ mod tests {
         assert!(failures.is_empty(), "kernels failing naga validation:\n{}", failures.join("\n\n"));
     }
 
+    /// Uniform buffers of `module` that are not a table of vec4<f32> (see
+    /// `uniform_buffers_are_only_constant_tables`).
+    fn non_table_uniforms(name: &str, module: &naga::Module) -> Vec<String> {
+        let mut offenders = Vec::new();
+        for (_, g) in module.global_variables.iter().filter(|(_, g)| g.space == naga::AddressSpace::Uniform) {
+            if !is_vec4_table(module, g) {
+                offenders.push(format!("{name}: var<uniform> {}", g.name.clone().unwrap_or_default()));
+            }
+        }
+        offenders
+    }
+
+    fn is_vec4_table(module: &naga::Module, g: &naga::GlobalVariable) -> bool {
+        match &module.types[g.ty].inner {
+            naga::TypeInner::Array { base, .. } => matches!(
+                module.types[*base].inner,
+                naga::TypeInner::Vector { size: naga::VectorSize::Quad, scalar: naga::Scalar::F32 }
+            ),
+            _ => false,
+        }
+    }
+
+    /// SwiftShader's per-stage storage-buffer limit (the lowest of the Vulkan
+    /// implementations we test against; the renderer's backward bound 12 before the
+    /// field outputs were packed).
+    const SWIFTSHADER_STORAGE_BUFFERS: usize = 10;
+
+    /// Entry points of `module` binding more storage buffers than SwiftShader allows.
+    fn storage_buffers_over_limit(name: &str, module: &naga::Module) -> Vec<String> {
+        let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::SHADER_FLOAT32_ATOMIC)
+            .validate(module)
+            .unwrap();
+        let mut over = Vec::new();
+        for (i, ep) in module.entry_points.iter().enumerate() {
+            let used = info.get_entry_point(i);
+            let storage = module
+                .global_variables
+                .iter()
+                .filter(|(h, g)| matches!(g.space, naga::AddressSpace::Storage { .. }) && !used[*h].is_empty())
+                .count();
+            if storage > SWIFTSHADER_STORAGE_BUFFERS {
+                over.push(format!("{name}:{} binds {storage}", ep.name));
+            }
+        }
+        over
+    }
+
     /// lavapipe recompiles (and leaks) a shader at every bind when uniform-buffer values
     /// steer its control flow (module doc, "Uniform buffers"): parameters go to storage,
     /// and a uniform buffer may only be a table of vec4<f32>.
@@ -387,51 +488,26 @@ mod tests {
     fn uniform_buffers_are_only_constant_tables() {
         let mut tables = 0;
         let mut offenders = Vec::new();
-        for (name, _) in KERNEL_SOURCES {
+        for name in complete_kernels() {
             let module = validate(name, true).expect("validated in the test above");
-            for (_, g) in module.global_variables.iter().filter(|(_, g)| g.space == naga::AddressSpace::Uniform) {
-                let is_vec4_table = match &module.types[g.ty].inner {
-                    naga::TypeInner::Array { base, .. } => matches!(
-                        module.types[*base].inner,
-                        naga::TypeInner::Vector { size: naga::VectorSize::Quad, scalar: naga::Scalar::F32 }
-                    ),
-                    _ => false,
-                };
-                if is_vec4_table {
-                    tables += 1;
-                } else {
-                    offenders.push(format!("{name}: var<uniform> {}", g.name.clone().unwrap_or_default()));
-                }
-            }
+            offenders.extend(non_table_uniforms(name, &module));
+            tables += module
+                .global_variables
+                .iter()
+                .filter(|(_, g)| g.space == naga::AddressSpace::Uniform && is_vec4_table(&module, g))
+                .count();
         }
         assert!(offenders.is_empty(), "declare parameters as var<storage, read> (Binding::Params): {offenders:?}");
-        assert!(tables > 0, "the grid field's weight table is a uniform buffer; the check above saw none");
+        assert!(tables > 0, "a kernel's weight table is a uniform buffer; the check above saw none");
     }
 
-    /// Every entry point binds at most 10 storage buffers, SwiftShader's per-stage limit
-    /// (the lowest of the Vulkan implementations we test against; the renderer's
-    /// backward bound 12 before the field outputs were packed).
+    /// Every entry point binds at most 10 storage buffers, SwiftShader's per-stage limit.
     #[test]
     fn every_entry_point_fits_swiftshaders_storage_buffer_limit() {
-        const SWIFTSHADER_STORAGE_BUFFERS: usize = 10;
         let mut over = Vec::new();
-        for (name, _) in KERNEL_SOURCES {
-            let src = preprocess(name, true).unwrap();
-            let module = naga::front::wgsl::parse_str(&src).unwrap();
-            let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::SHADER_FLOAT32_ATOMIC)
-                .validate(&module)
-                .unwrap();
-            for (i, ep) in module.entry_points.iter().enumerate() {
-                let used = info.get_entry_point(i);
-                let storage = module
-                    .global_variables
-                    .iter()
-                    .filter(|(h, g)| matches!(g.space, naga::AddressSpace::Storage { .. }) && !used[*h].is_empty())
-                    .count();
-                if storage > SWIFTSHADER_STORAGE_BUFFERS {
-                    over.push(format!("{name}:{} binds {storage}", ep.name));
-                }
-            }
+        for name in complete_kernels() {
+            let module = validate(name, true).unwrap();
+            over.extend(storage_buffers_over_limit(name, &module));
         }
         assert!(over.is_empty(), "over {SWIFTSHADER_STORAGE_BUFFERS} storage buffers: {over:?}");
     }

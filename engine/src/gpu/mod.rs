@@ -106,7 +106,7 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     summary: Arc<AdapterSummary>,
     limits: wgpu::Limits,
-    kernels: Arc<Mutex<HashMap<KernelSpec, Arc<Kernel>>>>,
+    kernels: Arc<Mutex<HashMap<(KernelSpec, String), Arc<Kernel>>>>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -210,13 +210,21 @@ impl Gpu {
 
     /// Returns the compute kernel for `spec`, building and caching it on first use.
     pub fn kernel(&self, spec: &KernelSpec) -> Result<Arc<Kernel>, GpuError> {
-        if let Some(k) = self.kernels.lock().unwrap().get(spec) {
+        self.specialized_kernel(spec, String::new())
+    }
+
+    /// Returns the compute kernel for `spec` completed by `generated` WGSL (see
+    /// `gpu::kernel`, "Generated code"), building and caching it on first use of that
+    /// text.
+    pub fn specialized_kernel(&self, spec: &KernelSpec, generated: String) -> Result<Arc<Kernel>, GpuError> {
+        let key = (spec.clone(), generated);
+        if let Some(k) = self.kernels.lock().unwrap().get(&key) {
             return Ok(k.clone());
         }
         let started = std::time::Instant::now();
-        let kernel = Arc::new(Kernel::build(self, spec)?);
+        let kernel = Arc::new(Kernel::build(self, spec, &key.1)?);
         log::debug!("built kernel {}:{} in {:.0} ms", spec.file, spec.entry, started.elapsed().as_secs_f64() * 1e3);
-        self.kernels.lock().unwrap().insert(spec.clone(), kernel.clone());
+        self.kernels.lock().unwrap().insert(key, kernel.clone());
         Ok(kernel)
     }
 

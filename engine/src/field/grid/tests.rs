@@ -669,3 +669,51 @@ fn field_grid_throughput() {
     let mut field = GridField::new(&gpu, &GridConfig::default(), AABB).unwrap();
     measure_throughput(&gpu, &mut field, AABB, 1 << 16);
 }
+
+/// The same at the field of `tools/configs/sparse-small.toml` and `demo.toml` (8 levels,
+/// 2^16 entries, finest resolution 256, width 32). Run with
+/// `cargo test -p edgenerf-engine --release field_grid_throughput_small -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn field_grid_throughput_small() {
+    let gpu = test_gpu(false);
+    let cfg = GridConfig {
+        n_levels: 8,
+        log2_hashmap_size: 16,
+        finest_resolution: 256.0,
+        hidden_width: 32,
+        ..GridConfig::default()
+    };
+    let mut field = GridField::new(&gpu, &cfg, AABB).unwrap();
+    measure_throughput(&gpu, &mut field, AABB, 1 << 16);
+}
+
+/// Every generated kernel variant the presets use (the `[field]` table of each
+/// `tools/configs/*.toml`, and the default config) validates with naga on both
+/// float-atomic paths and stays within the portability rules of `gpu::kernel`.
+#[test]
+fn generated_kernels_of_every_preset_validate() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/configs");
+    let mut configs = vec![("default".to_string(), GridConfig::default())];
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let value: toml::Value = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+            let field = value.get("field").cloned().unwrap_or(toml::Value::Table(Default::default()));
+            let cfg: GridConfig = field.try_into().unwrap_or_else(|e| panic!("{}: [field]: {e}", path.display()));
+            configs.push((path.display().to_string(), cfg));
+        }
+    }
+    assert!(configs.len() >= 5, "the presets were not found in {}", dir.display());
+    let kernels = [(&DENSITY, codegen::GridKernel::Density), (&FORWARD, codegen::GridKernel::Forward), (&BACKWARD, codegen::GridKernel::Backward)];
+    let mut problems = Vec::new();
+    for (name, cfg) in &configs {
+        let layout = GridLayout::new(cfg).unwrap();
+        for (spec, which) in kernels {
+            for p in crate::gpu::kernel::tests::portability_problems(spec.file, &codegen::source(&layout, which)) {
+                problems.push(format!("{name}: {p}"));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n\n"));
+}
