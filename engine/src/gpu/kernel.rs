@@ -324,9 +324,8 @@ impl<'g> Encoder<'g> {
         })
     }
 
-    /// Dispatches `kernel` over an explicit workgroup grid; `resources[i]` is bound
-    /// whole at binding `i`.
-    pub fn dispatch(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer], groups: [u32; 3]) {
+    /// The bind group of `resources` (`resources[i]` bound whole at binding `i`).
+    fn bind_group(&self, kernel: &Kernel, resources: &[&wgpu::Buffer]) -> wgpu::BindGroup {
         assert_eq!(
             resources.len(),
             kernel.spec.bindings.len(),
@@ -335,19 +334,25 @@ impl<'g> Encoder<'g> {
             resources.len(),
             kernel.spec.bindings.len()
         );
-        if groups.contains(&0) {
-            return;
-        }
         let entries: Vec<_> = resources
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
             .collect();
-        let bind_group = self.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        self.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(kernel.spec.entry),
             layout: &kernel.layout,
             entries: &entries,
-        });
+        })
+    }
+
+    /// Dispatches `kernel` over an explicit workgroup grid; `resources[i]` is bound
+    /// whole at binding `i`.
+    pub fn dispatch(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer], groups: [u32; 3]) {
+        if groups.contains(&0) {
+            return;
+        }
+        let bind_group = self.bind_group(kernel, resources);
         let mut pass = self.encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(kernel.spec.entry),
             timestamp_writes: None,
@@ -355,6 +360,24 @@ impl<'g> Encoder<'g> {
         pass.set_pipeline(&kernel.pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
         pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+    }
+
+    /// Dispatches `kernel` with its workgroup grid read from `args` at byte `offset`
+    /// (three `u32`, written earlier in this encoder: see [`super::IndirectArgs`]).
+    pub fn dispatch_indirect(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer], args: &wgpu::Buffer, offset: u64) {
+        let bind_group = self.bind_group(kernel, resources);
+        let mut pass = self.encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(kernel.spec.entry),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&kernel.pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups_indirect(args, offset);
+    }
+
+    /// The GPU this encoder records for.
+    pub fn gpu(&self) -> &'g Gpu {
+        self.gpu
     }
 
     /// Dispatches a one-dimensional kernel over `threads` invocations of

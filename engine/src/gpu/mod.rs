@@ -22,12 +22,14 @@
 
 mod buffer;
 pub mod selftest;
+mod indirect;
 pub mod kernel;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 pub use buffer::GpuBuffer;
+pub use indirect::IndirectArgs;
 pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
 
 /// What to install when no Vulkan driver is found.

@@ -132,7 +132,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use super::{Field, FieldError, NamedArray, ParamGroup};
-use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
+use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, IndirectArgs, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
 use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
@@ -573,6 +573,9 @@ pub struct GridField {
     /// The generated vector code of the density, forward and backward kernels for
     /// `layout` (`codegen`), made once.
     generated: [String; 3],
+    /// Dispatch arguments of the forward and the backward's chunks, from the batch's
+    /// GPU-side count (`gpu::IndirectArgs`): only the samples present are launched.
+    indirect: Option<IndirectArgs>,
 }
 
 /// Initial parameters for `config` (table, MLP), as described in the module doc.
@@ -614,6 +617,7 @@ impl GridField {
             generated: [GridKernel::Density, GridKernel::Forward, GridKernel::Backward]
                 .map(|k| codegen::source(&layout, k)),
             layout,
+            indirect: None,
             scratch: None,
             mlp_uniform: gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("grid mlp (uniform copy)"),
@@ -708,6 +712,13 @@ impl GridField {
         gpu.specialized_kernel(spec, self.generated[which as usize].clone())
     }
 
+    /// Makes sure the dispatch arguments have room for `n_chunks` chunks.
+    fn ensure_indirect(&mut self, gpu: &Gpu, n_chunks: u32) {
+        if self.indirect.as_ref().is_none_or(|a| a.capacity() < n_chunks) {
+            self.indirect = Some(IndirectArgs::new(gpu, n_chunks));
+        }
+    }
+
     /// Makes sure a scratch buffer for chunks of up to `capacity` samples exists.
     fn ensure_scratch(&mut self, gpu: &Gpu, capacity: u32) -> Result<(), GpuError> {
         let dims = scratch_dims4(&self.layout);
@@ -756,22 +767,27 @@ impl Field for GridField {
         let cap = batch.capacity;
         out.assert_capacity(cap, "forward: FieldOutputs");
         let kernel = self.kernel(gpu, &FORWARD, GridKernel::Forward)?;
-        let mut enc = gpu.encoder();
         let flags = if normals { FLAG_NORMALS } else { 0 };
+        self.ensure_indirect(gpu, 1);
+        let args = self.indirect.as_ref().expect("made above");
+        let (mlp_uniform, table) = (&self.mlp_uniform, &self.table.buffer);
+        let mut enc = gpu.encoder();
         let params = enc.params(&self.dispatch_params(cap, flags, 0, cap));
-        enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
-        enc.dispatch_threads(
+        enc.copy(&self.mlp.buffer, mlp_uniform, self.layout.mlp_len as u64 * 4);
+        args.record(&mut enc, &batch.count.buffer, cap, cap.max(1), 1)?;
+        args.dispatch(
+            &mut enc,
             &kernel,
             &[
                 &params,
-                &self.table.buffer,
-                &self.mlp_uniform,
+                table,
+                mlp_uniform,
                 &batch.samples.buffer,
                 &batch.count.buffer,
                 &out.rgb_density.buffer,
                 &out.normal.buffer,
             ],
-            cap,
+            0,
         );
         enc.submit();
         Ok(())
@@ -782,6 +798,8 @@ impl Field for GridField {
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");
         self.ensure_scratch(gpu, cap)?;
+        let chunk_room = self.scratch.as_ref().map_or(1, |s| cap.div_ceil(s.chunk).max(1));
+        self.ensure_indirect(gpu, chunk_room);
         let backward = self.kernel(gpu, &BACKWARD, GridKernel::Backward)?;
         let outer = gpu.kernel(&OUTER)?;
         let finalize = gpu.kernel(&FINALIZE)?;
@@ -805,16 +823,20 @@ impl Field for GridField {
             products.push(OuterProduct { mask_d: true, ..m });
         }
         let flags = if normal_grads { FLAG_NORMALS } else { 0 };
+        let n_chunks = cap.div_ceil(chunk).max(1);
+        let args = self.indirect.as_ref().expect("made above");
         let mut enc = gpu.encoder();
         if normal_grads {
             enc.clear(&self.normal_m.buffer);
         }
         enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
+        args.record(&mut enc, &batch.count.buffer, cap, chunk, n_chunks)?;
         let mut start = 0u32;
         while start < cap {
             let len = chunk.min(cap - start);
             let params = enc.params(&self.dispatch_params(cap, flags, start, len));
-            enc.dispatch_threads(
+            args.dispatch(
+                &mut enc,
                 &backward,
                 &[
                     &params,
@@ -827,7 +849,7 @@ impl Field for GridField {
                     &self.table_grad.buffer,
                     &scratch.buffer.buffer,
                 ],
-                len,
+                start / chunk,
             );
             let groups = len.div_ceil(SAMPLES_PER_THREAD);
             for pr in &products {
