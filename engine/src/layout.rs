@@ -173,3 +173,18 @@ impl FieldOutputs {
 /// Gradients of the loss with respect to [`FieldOutputs`], same layout (`d rgb` and
 /// `d sigma` packed as `[dr, dg, db, d sigma]`).
 pub type FieldGrads = FieldOutputs;
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(GpuRay, "common/layout.wgsl", "Ray", [origin, t_min, dir, t_max]);
+        crate::assert_wgsl_mirror!(RayAux, "common/layout.wgsl", "RayAux", [background, n_contrib, distortion, occlusion, orientation]);
+        crate::assert_wgsl_mirror!(SampleRange, "common/layout.wgsl", "SampleRange", [start, count]);
+        crate::assert_wgsl_mirror!(GpuSample, "common/layout.wgsl", "Sample", [pos, t, dir, dt]);
+        crate::assert_wgsl_mirror!(RayOutput, "common/layout.wgsl", "RayOutput", [rgb, opacity, normal, depth]);
+    }
+}

@@ -105,3 +105,14 @@ mod tests {
         }
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(IndirectParams, "gpu/indirect.wgsl", "IndirectParams", [cap, chunk, n_chunks, max_per_dim]);
+    }
+}

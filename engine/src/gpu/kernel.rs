@@ -443,6 +443,39 @@ pub(crate) mod tests {
         problems
     }
 
+    /// Whether the `#[repr(C)]` Rust struct described by `rust_size` and `rust_fields`
+    /// (name in WGSL, byte offset; padding left out) has the layout of WGSL struct
+    /// `wgsl_struct` of kernel file `file` as naga lays it out: the same members in the
+    /// same order at the same offsets (members named `_...` are padding and skipped) and
+    /// the same size. Use it through [`assert_wgsl_mirror`](crate::assert_wgsl_mirror).
+    pub(crate) fn check_wgsl_mirror(file: &str, wgsl_struct: &str, rust_size: usize, rust_fields: &[(&str, usize)])
+    -> Result<(), String> {
+        let module = validate(file, true).map_err(|e| e.to_string())?;
+        let (members, span) = module
+            .types
+            .iter()
+            .find_map(|(_, t)| match &t.inner {
+                naga::TypeInner::Struct { members, span } if t.name.as_deref() == Some(wgsl_struct) => {
+                    Some((members.clone(), *span))
+                }
+                _ => None,
+            })
+            .ok_or_else(|| format!("{file} declares no struct {wgsl_struct}"))?;
+        let wgsl: Vec<(String, usize)> = members
+            .iter()
+            .filter_map(|m| m.name.clone().map(|n| (n, m.offset as usize)))
+            .filter(|(n, _)| !n.starts_with('_'))
+            .collect();
+        let rust: Vec<(String, usize)> = rust_fields.iter().map(|(n, o)| (n.to_string(), *o)).collect();
+        if wgsl != rust {
+            return Err(format!("{file}: {wgsl_struct} has members (name, offset) {wgsl:?}, its Rust mirror {rust:?}"));
+        }
+        if span as usize != rust_size {
+            return Err(format!("{file}: {wgsl_struct} is {span} bytes, its Rust mirror {rust_size}"));
+        }
+        Ok(())
+    }
+
     #[test]
     fn every_kernel_validates_on_both_atomic_paths() {
         assert!(!KERNEL_SOURCES.is_empty(), "no kernels embedded");
@@ -583,4 +616,23 @@ pub(crate) mod tests {
         assert!(!err.emit_to_string("fn f( {").is_empty());
         assert!(matches!(validate("no/such.wgsl", true), Err(GpuError::UnknownKernel(_))));
     }
+}
+
+/// Asserts that a `#[repr(C)]` Rust struct mirrors a WGSL struct (test builds only):
+/// `assert_wgsl_mirror!(RustType, "kernel/file.wgsl", "WgslName", [field, other as "wgsl_name", ...])`
+/// lists the Rust fields in order (padding left out; `as` where the WGSL member is named
+/// otherwise) and checks their offsets and the struct's size against naga's layout of
+/// the WGSL struct (`tests::check_wgsl_mirror`). A member added, moved or retyped on
+/// either side fails the owner's test.
+#[cfg(test)]
+#[macro_export]
+macro_rules! assert_wgsl_mirror {
+    ($ty:ty, $file:expr, $wgsl:expr, [$($field:ident $(as $wname:literal)?),* $(,)?]) => {{
+        let fields: Vec<(&str, usize)> = vec![$(($crate::assert_wgsl_mirror!(@name $field $($wname)?), std::mem::offset_of!($ty, $field))),*];
+        if let Err(e) = $crate::gpu::kernel::tests::check_wgsl_mirror($file, $wgsl, std::mem::size_of::<$ty>(), &fields) {
+            panic!("{e}");
+        }
+    }};
+    (@name $field:ident $wname:literal) => { $wname };
+    (@name $field:ident) => { stringify!($field) };
 }

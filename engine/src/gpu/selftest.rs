@@ -98,3 +98,14 @@ mod tests {
         run(true);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "gpu/roundtrip.wgsl", "Params", [n, bins, scale]);
+    }
+}

@@ -356,3 +356,14 @@ mod tests {
         }
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor]);
+    }
+}

@@ -182,3 +182,14 @@ pub mod reference {
 
 #[cfg(test)]
 mod tests;
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "loss/depth_tv.wgsl", "Params", [n_rays, offset, patch_size, lambda, acc_weight, eps]);
+    }
+}

@@ -465,3 +465,14 @@ pub mod reference {
 
 #[cfg(test)]
 mod tests;
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "loss/edge_reg.wgsl", "Params", [n_patches, official, depth_plane, depth_given_termination, lambda_depth, lambda_normal, tau_depth, tau_normal, opacity_floor]);
+    }
+}

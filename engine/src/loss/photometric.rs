@@ -213,3 +213,14 @@ mod tests {
         assert!((d.read(&gpu).unwrap()[0].rgb[0] - 2.0 * (rays[0].rgb[0] - 0.8) / 12.0).abs() < 1e-6);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "loss/photometric.wgsl", "Params", [n_rays, scale, recomposite, loaded_over]);
+    }
+}

@@ -446,3 +446,14 @@ impl Adam {
         Ok(())
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(AdamParams, "optim/adam.wgsl", "AdamParams", [n, flags, lr, beta1, beta2, eps, bias1, bias2, weight_decay]);
+    }
+}

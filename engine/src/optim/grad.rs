@@ -286,3 +286,16 @@ impl GradNorm {
         self.read(gpu)
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(PartialParams, "optim/grad_norm.wgsl", "PartialParams", [n, offset, blocks, clip_value]);
+        crate::assert_wgsl_mirror!(FinalParams, "optim/grad_norm.wgsl", "FinalParams", [count, max_norm, clip_value, norm_eps]);
+        crate::assert_wgsl_mirror!(ClipParams, "optim/grad_norm.wgsl", "ClipParams", [n]);
+    }
+}

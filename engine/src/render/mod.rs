@@ -383,3 +383,14 @@ pub fn unit_normal(out: &RayOutput) -> [f32; 3] {
     let len = (x * x + y * y + z * z).sqrt();
     if len > 1e-20 { [x / len, y / len, z / len] } else { [0.0; 3] }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "render/composite.wgsl", "Params", [n_rays, bg_mode, seed, write_weights, background, t_threshold, accumulate, distortion, occlusion, occlusion_end, orientation]);
+    }
+}

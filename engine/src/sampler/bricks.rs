@@ -197,3 +197,14 @@ mod tests {
         assert!(BrickBvh::build(Vec::new()).unwrap().nodes.is_empty());
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(GpuBvhNode, "sampler/intervals.wgsl", "BvhNode", [min, prim_count, max, first_index]);
+    }
+}

@@ -276,3 +276,14 @@ pub(crate) mod tests {
         assert!(ray_intervals(&gpu, &grid, &[ray], 16).unwrap()[0].is_empty());
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "sampler/intervals.wgsl", "Params", [n_rays, n_nodes, max_intervals]);
+    }
+}

@@ -587,3 +587,14 @@ mod occupancy_tests {
         }
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "sampler/march.wgsl", "Params", [geom, n_rays, capacity, max_per_ray, occupancy, step, max_intervals, jitter, seed]);
+    }
+}

@@ -566,3 +566,16 @@ pub(crate) mod tests {
         assert_eq!(upd.occupied_cells, kept);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(OccupancyGeom, "sampler/common.wgsl", "OccupancyGeom", [aabb_min, res, aabb_max, n_cells]);
+        crate::assert_wgsl_mirror!(QueryParams, "sampler/occupancy.wgsl", "QueryParams", [geom, count, seed, all_cells, n_uniform, list_len]);
+        crate::assert_wgsl_mirror!(CountParams, "sampler/occupancy.wgsl", "CountParams", [n, n_cells, decay, threshold]);
+    }
+}

@@ -170,3 +170,14 @@ mod tests {
         }
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "sampler/scan.wgsl", "Params", [n, n_blocks]);
+    }
+}

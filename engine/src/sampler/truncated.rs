@@ -133,3 +133,14 @@ mod tests {
         assert_eq!(targets.read(&gpu).unwrap()[5][3], 0.0);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "sampler/truncated.wgsl", "Params", [n_rays, patches]);
+    }
+}

@@ -965,3 +965,17 @@ impl Field for GridField {
         self.active_levels = n.min(self.config.n_levels);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(GpuLevel, "field/grid_lib.wgsl", "Level", [offset, size, res, scale]);
+        crate::assert_wgsl_mirror!(GridParams, "field/grid_lib.wgsl", "GridParams", [aabb_min, n_levels, inv_extent, active_levels, in4, width4, activation, flags, w1, w2, c1, c2, c3, n, chunk_start, chunk_len, normal_eps, density_bias, scratch, levels, normal_weights]);
+        crate::assert_wgsl_mirror!(OuterParams, "field/grid_outer.wgsl", "OuterParams", [d_off, d_stride, x_off, x_stride, out4, in4, tiles_i, tiles_o, n_out, mask_d, grad_off, grad_stride, chunk_start, chunk_len, spt, capacity]);
+        crate::assert_wgsl_mirror!(FinalizeParams, "field/grid_finalize.wgsl", "FinalizeParams", [w1, w2, in4, width]);
+    }
+}

@@ -284,3 +284,14 @@ pub fn linear_weight_grad(
     let u = enc.params(&r);
     enc.dispatch_threads(&k.reduce, &[&u, &partial.buffer, &partial.buffer, &partial.buffer, &grads.buffer], layer.n_out * n);
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "field/mlp_gemm.wgsl", "Gemm", [m, n, k, flags, a_off, a_sm, a_sk, streams, b_off, b_sk, b_sn, bias_off, c_off, c_sm, k_chunk, bias_col, mask_off, mask_sm, mask_streams, splits]);
+    }
+}

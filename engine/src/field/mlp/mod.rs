@@ -633,3 +633,14 @@ impl Field for MlpField {
         self.cached.set(None);
     }
 }
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "field/mlp_lib.wgsl", "MlpParams", [center, scale, n, streams, flags, pos_min_deg, pos_bands, active_bands, dir_deg, pos_dim, enc_off, enc_stride, dir_off, dir_stride, density_bias, normal_eps, radius0, radius1, point_var, chunk_start]);
+    }
+}
