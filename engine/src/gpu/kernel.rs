@@ -352,6 +352,11 @@ impl<'g> Encoder<'g> {
         if groups.contains(&0) {
             return;
         }
+        self.begin_pass(kernel, resources).dispatch_workgroups(groups[0], groups[1], groups[2]);
+    }
+
+    /// A compute pass with `kernel`'s pipeline and `resources` bound.
+    fn begin_pass(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer]) -> wgpu::ComputePass<'_> {
         let bind_group = self.bind_group(kernel, resources);
         let mut pass = self.encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(kernel.spec.entry),
@@ -359,20 +364,13 @@ impl<'g> Encoder<'g> {
         });
         pass.set_pipeline(&kernel.pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
-        pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+        pass
     }
 
     /// Dispatches `kernel` with its workgroup grid read from `args` at byte `offset`
     /// (three `u32`, written earlier in this encoder: see [`super::IndirectArgs`]).
     pub fn dispatch_indirect(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer], args: &wgpu::Buffer, offset: u64) {
-        let bind_group = self.bind_group(kernel, resources);
-        let mut pass = self.encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some(kernel.spec.entry),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&kernel.pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
-        pass.dispatch_workgroups_indirect(args, offset);
+        self.begin_pass(kernel, resources).dispatch_workgroups_indirect(args, offset);
     }
 
     /// The GPU this encoder records for.
