@@ -153,14 +153,14 @@ fn encode(s: &mut String, d: &Dims) {
         writeln!(s, "    (*e)[{k4}] = vec4<f32>(0.0);").unwrap();
     }
     for l in 0..d.levels {
-        let (i, c) = (l / 2, (l % 2) * 2);
         writeln!(
             s,
             "    if (level_active({l}u)) {{\n        let r = encode_level({l}u, p, want_jac);\n        \
-             (*e)[{i}][{c}] = r.val.x;\n        (*e)[{i}][{}] = r.val.y;\n        \
+             {} = r.val.x;\n        {} = r.val.y;\n        \
              (*jac)[{}] = r.jac0;\n        (*jac)[{}] = r.jac1;\n    }} else {{\n        \
              (*jac)[{}] = vec3<f32>(0.0);\n        (*jac)[{}] = vec3<f32>(0.0);\n    }}",
-            c + 1,
+            comp("e", 2 * l),
+            comp("e", 2 * l + 1),
             2 * l,
             2 * l + 1,
             2 * l,

@@ -132,7 +132,9 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use super::{Field, FieldError, NamedArray, ParamGroup};
-use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, IndirectArgs, KernelSpec};
+use std::sync::{Arc, OnceLock};
+
+use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
 use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
@@ -570,9 +572,10 @@ pub struct GridField {
     /// Uniform copy of the MLP weights read by the per-sample kernels, refreshed from
     /// `mlp` at the start of every pass (uniform-buffer reads are broadcasts).
     mlp_uniform: wgpu::Buffer,
-    /// The generated vector code of the density, forward and backward kernels for
-    /// `layout` (`codegen`), made once.
-    generated: [String; 3],
+    /// The density, forward and backward pipelines with the vector code generated for
+    /// `layout` (`codegen`), built on first use: a dispatch neither regenerates nor
+    /// looks up the text.
+    kernels: [OnceLock<Arc<Kernel>>; 3],
     /// Dispatch arguments of the forward and the backward's chunks, from the batch's
     /// GPU-side count (`gpu::IndirectArgs`): only the samples present are launched.
     indirect: Option<IndirectArgs>,
@@ -614,8 +617,7 @@ impl GridField {
             mlp: GpuBuffer::from_slice(gpu, "grid mlp", &mlp)?,
             mlp_grad: GpuBuffer::zeros(gpu, "grid mlp grad", mlp.len())?,
             normal_m: GpuBuffer::zeros(gpu, "grid normal M", w * layout.in_pad)?,
-            generated: [GridKernel::Density, GridKernel::Forward, GridKernel::Backward]
-                .map(|k| codegen::source(&layout, k)),
+            kernels: Default::default(),
             layout,
             indirect: None,
             scratch: None,
@@ -708,8 +710,13 @@ impl GridField {
 
     /// The pipeline of `spec` with the vector code generated for this field's layout
     /// (`codegen`; built once per layout and cached by the [`Gpu`]).
-    fn kernel(&self, gpu: &Gpu, spec: &KernelSpec, which: GridKernel) -> Result<std::sync::Arc<crate::gpu::Kernel>, GpuError> {
-        gpu.specialized_kernel(spec, self.generated[which as usize].clone())
+    fn kernel(&self, gpu: &Gpu, spec: &KernelSpec, which: GridKernel) -> Result<Arc<Kernel>, GpuError> {
+        let cell = &self.kernels[which as usize];
+        if let Some(k) = cell.get() {
+            return Ok(k.clone());
+        }
+        let k = gpu.specialized_kernel(spec, codegen::source(&self.layout, which))?;
+        Ok(cell.get_or_init(|| k).clone())
     }
 
     /// Makes sure the dispatch arguments have room for `n_chunks` chunks.
@@ -798,13 +805,13 @@ impl Field for GridField {
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");
         self.ensure_scratch(gpu, cap)?;
-        let chunk_room = self.scratch.as_ref().map_or(1, |s| cap.div_ceil(s.chunk).max(1));
-        self.ensure_indirect(gpu, chunk_room);
+        let chunk = self.scratch.as_ref().expect("scratch allocated above").chunk;
+        let n_chunks = cap.div_ceil(chunk).max(1);
+        self.ensure_indirect(gpu, n_chunks);
         let backward = self.kernel(gpu, &BACKWARD, GridKernel::Backward)?;
         let outer = gpu.kernel(&OUTER)?;
         let finalize = gpu.kernel(&FINALIZE)?;
         let scratch = self.scratch.as_ref().expect("scratch allocated above");
-        let chunk = scratch.chunk;
         let dims = scratch_dims4(&self.layout);
         let l = &self.layout;
         let (in4, w4) = ((l.in_pad / 4) as u32, (l.width / 4) as u32);
@@ -823,7 +830,6 @@ impl Field for GridField {
             products.push(OuterProduct { mask_d: true, ..m });
         }
         let flags = if normal_grads { FLAG_NORMALS } else { 0 };
-        let n_chunks = cap.div_ceil(chunk).max(1);
         let args = self.indirect.as_ref().expect("made above");
         let mut enc = gpu.encoder();
         if normal_grads {
