@@ -8,7 +8,8 @@
 //! rays (train/)      -> Sampler -> SampleBatch { ranges, samples, count }
 //! SampleBatch        -> Field   -> FieldOutputs { rgb_density, normal } per sample
 //! SampleBatch + FieldOutputs -> Renderer -> RayOutputs per ray
-//! d RayOutputs (loss/) -> Renderer backward -> FieldGrads per sample -> Field backward
+//! d RayOutputs (loss/) -> Renderer backward -> FieldGrads per sample
+//!                      -> sampler's live compaction -> LiveSamples -> Field backward
 //! ```
 //!
 //! # Invariants
@@ -173,6 +174,46 @@ impl FieldOutputs {
 /// Gradients of the loss with respect to [`FieldOutputs`], same layout (`d rgb` and
 /// `d sigma` packed as `[dr, dg, db, d sigma]`).
 pub type FieldGrads = FieldOutputs;
+
+/// The samples of a batch whose [`FieldGrads`] are not all zero, in increasing order:
+/// the list a field's backward may restrict itself to (every other sample carries no
+/// gradient, e.g. past its ray's early termination). Written by the sampler's live
+/// compaction after the renderer's backward.
+///
+/// One `u32` buffer, so that it takes the binding of [`SampleBatch::count`] in the
+/// kernels that read it: `list[0]` is the number of live samples `n` (a count in
+/// `count[0]`'s place), `list[1..4]` are unused, `list[4 + k]` is the index of the
+/// `k`-th live sample for `k < n`.
+pub struct LiveSamples {
+    pub list: GpuBuffer<u32>,
+    pub capacity: u32,
+}
+
+impl LiveSamples {
+    /// Entries before the first index (a `vec4` of header, so the indices stay aligned).
+    pub const HEADER: u32 = 4;
+
+    pub fn new(gpu: &Gpu, capacity: u32) -> Result<Self, GpuError> {
+        let len = (capacity + Self::HEADER) as usize;
+        Ok(Self { list: GpuBuffer::zeros(gpu, "live samples", len)?, capacity })
+    }
+
+    /// Writes the list `indices` from the host (tests).
+    pub fn write(&self, gpu: &Gpu, indices: &[u32]) {
+        assert!(indices.len() <= self.capacity as usize, "{} live samples, room for {}", indices.len(), self.capacity);
+        let mut list = vec![indices.len() as u32, 0, 0, 0];
+        list.extend_from_slice(indices);
+        self.list.write(gpu, &list);
+    }
+
+    /// The live samples' indices (waits for the GPU).
+    pub fn read(&self, gpu: &Gpu) -> Result<Vec<u32>, GpuError> {
+        let list = self.list.read(gpu)?;
+        let n = (list[0] as usize).min(self.capacity as usize);
+        let h = Self::HEADER as usize;
+        Ok(list[h..h + n].to_vec())
+    }
+}
 
 /// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
 #[cfg(test)]

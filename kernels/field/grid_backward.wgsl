@@ -9,8 +9,10 @@
 // termination, whose gradients the renderer zeroes) contributes exactly nothing: its
 // deltas are exact zeros, so its rows add zeros to the weight gradients and its scatter
 // adds nothing. (It used to return early; on lavapipe that put the whole kernel under
-// an execution mask and saved nothing, see grid_forward.wgsl. Compacting the samples
-// that carry gradient is the way to skip them.)
+// an execution mask and saved nothing, see grid_forward.wgsl.) With FLAG_LIVE the
+// caller skips them instead: `count` is the list of the samples that carry gradient
+// (LiveSamples, from sampler/live.wgsl), the chunks run over its entries, and a
+// scratch row belongs to the entry at that position of the chunk.
 //
 // Scratch regions (vec4 offsets P.scratch[r], per-sample rows of dim4 vec4s, indexed
 // by the sample's position in the chunk):
@@ -23,6 +25,7 @@
 //#generated
 
 @group(0) @binding(3) var<storage, read> samples: array<Sample>;
+// SampleBatch::count, or with FLAG_LIVE the LiveSamples list.
 @group(0) @binding(4) var<storage, read> count: array<u32>;
 // (dL/drgb, dL/dsigma) packed as FieldOutputs packs (rgb, sigma).
 @group(0) @binding(5) var<storage, read> d_rgb_density: array<vec4<f32>>;
@@ -80,7 +83,11 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let n_valid = min(count[0], P.n);
     let in_chunk = t < P.chunk_len && P.chunk_start + t < n_valid;
     let local = min(t, max(P.chunk_len, 1u) - 1u);
-    let i = min(P.chunk_start + local, max(n_valid, 1u) - 1u);
+    var i = min(P.chunk_start + local, max(n_valid, 1u) - 1u);
+    if ((P.flags & FLAG_LIVE) != 0u) {
+        // Clamped: past the list's end (in_chunk false) the entry may be stale.
+        i = min(count[4u + i], max(P.n, 1u) - 1u);
+    }
     let d_out = select(vec4<f32>(0.0), d_rgb_density[i], in_chunk);
     let with_normals = (P.flags & FLAG_NORMALS) != 0u;
     let smp = samples[i];

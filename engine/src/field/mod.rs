@@ -18,7 +18,9 @@
 //!   of [`Field::params`] (second order through the normals when asked). It recomputes
 //!   what it needs from the parameters, so it only requires that the parameters did not
 //!   change since the forward pass whose outputs the gradients refer to. The caller
-//!   clears gradients with [`Field::zero_grads`] before a step.
+//!   clears gradients with [`Field::zero_grads`] before a step. Given the list of the
+//!   samples that carry gradient ([`LiveSamples`]), the grid runs only those; the MLP
+//!   runs every sample (its zero-gradient samples add exact zeros).
 //! * Parameters live on the GPU in `f32` buffers, grouped for the optimizer
 //!   ([`ParamGroup`], with per-group hints); [`Field::export`] / [`Field::import`]
 //!   move them to and from the host as named arrays (checkpoints).
@@ -34,7 +36,7 @@ pub use mlp::{Footprint, MlpConfig, MlpField, PositionEncoding};
 
 use crate::gpu::{Gpu, GpuBuffer, GpuError};
 pub use crate::optim::ParamGroup;
-use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, LiveSamples, SampleBatch};
 
 /// A named host-side parameter array (row-major `shape`), for checkpoints.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -71,8 +73,10 @@ pub trait Field {
 
     /// Adds `dL/dparams` for the per-sample output gradients `grads` into the gradient
     /// buffers; `normal_grads` enables the second-order path through the normals
-    /// (`grads.normal` is ignored without it).
-    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
+    /// (`grads.normal` is ignored without it). `live`, when given, lists every sample
+    /// whose `grads` may be non-zero (the sampler's live compaction): a backend may run
+    /// only those, or ignore the list; the gradients are the same either way.
+    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, live: Option<&LiveSamples>, normal_grads: bool)
     -> Result<(), GpuError>;
 
     /// Parameter groups for the optimizer, in a fixed order with unique names.

@@ -3,7 +3,8 @@
 //! Owns the occupancy grid ([`OccupancyGrid`]), the BVH over its occupied bricks
 //! ([`bricks`]), the per-ray occupied intervals ([`intervals`]), sample placement and
 //! compaction ([`Sampler`]), the prefix sum that compacts ([`scan`]), and the drop of
-//! the rays the batch capacity cut from the losses ([`truncated`]). Kernels live
+//! the rays the batch capacity cut from the losses ([`truncated`]), and the list of the
+//! samples that carry gradient for the field's backward ([`live`]). Kernels live
 //! under `kernels/sampler/`; each has exactly one owner here:
 //!
 //! | kernel | owner |
@@ -13,6 +14,7 @@
 //! | `sampler/scan.wgsl` | [`scan`] (exclusive prefix sum) |
 //! | `sampler/march.wgsl` | [`march`] (count / write samples) |
 //! | `sampler/truncated.wgsl` | [`truncated`] (zero the loss weights of cut rays) |
+//! | `sampler/live.wgsl` | [`live`] (list the samples that carry gradient) |
 //! | `sampler/common.wgsl` | include only: grid geometry, slab test, PCG hash |
 //!
 //! # How the train loop drives it
@@ -84,11 +86,13 @@ pub mod intervals;
 pub mod march;
 pub mod scan;
 pub mod truncated;
+pub mod live;
 
 pub use occupancy::{OccupancyQuery, OccupancyUpdate, OccupancyGrid};
 pub use march::{March, Sampler};
 pub use scan::ExclusiveScan;
 pub use truncated::DropTruncated;
+pub use live::LiveCompaction;
 
 use serde::{Deserialize, Serialize};
 

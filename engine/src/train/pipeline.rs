@@ -19,8 +19,10 @@
 //!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
 //!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
 //!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
+//!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
 //!   readbacks: rays dropped, the losses -> BatchLosses
-//! Pipeline::backward: the field's gradients zeroed, then the field backward
+//! Pipeline::backward: the field's gradients zeroed, then the field backward over the
+//!   listed samples (a fifth to a quarter of a batch past early termination late in a run)
 //! ```
 //!
 //! Invariants:
@@ -37,8 +39,8 @@ use crate::gpu::{Gpu, GpuBuffer};
 use crate::loss::photometric::Recomposite;
 use crate::loss::{DepthNormal, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
-use crate::sampler::DropTruncated;
-use crate::layout::{FieldGrads, GpuRay, GpuSample, RayOutput};
+use crate::sampler::{DropTruncated, LiveCompaction};
+use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
 
 use super::TrainError;
 use super::config::{BatchKind, RunConfig};
@@ -151,6 +153,8 @@ pub struct Pipeline {
     targets: GpuBuffer<[f32; 4]>,
     d_rays: GpuBuffer<RayOutput>,
     field_grads: FieldGrads,
+    /// The samples whose `field_grads` are not zero, and what lists them.
+    live: (LiveSamples, LiveCompaction),
     photometric: Photometric,
     drop_truncated: DropTruncated,
     edge_reg: EdgeReg,
@@ -189,6 +193,7 @@ impl Pipeline {
             targets: GpuBuffer::zeros(gpu, "targets", n_all as usize)?,
             d_rays: GpuBuffer::zeros(gpu, "d rays", n_all as usize)?,
             field_grads: FieldGrads::new(gpu, capacity)?,
+            live: live_list(gpu, capacity)?,
             photometric: Photometric::new(gpu, n_all)?,
             drop_truncated: DropTruncated::new(gpu)?,
             edge_reg: EdgeReg::new(gpu, n / 4)?,
@@ -254,7 +259,7 @@ impl Pipeline {
     /// the orientation prior is on).
     pub fn backward(&self, gpu: &Gpu, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
         model.field.zero_grads(gpu);
-        model.field.backward(gpu, &self.bufs.batch, &self.field_grads, plan.normals())?;
+        model.field.backward(gpu, &self.bufs.batch, &self.field_grads, Some(&self.live.0), plan.normals())?;
         Ok(())
     }
 
@@ -280,6 +285,7 @@ impl Pipeline {
         let n_all = self.bufs.batch.n_rays;
         self.bufs = BatchBuffers::new(gpu, n_all, grown)?;
         self.field_grads = FieldGrads::new(gpu, grown)?;
+        self.live = live_list(gpu, grown)?;
         Ok(Some(grown))
     }
 
@@ -340,6 +346,8 @@ impl Pipeline {
             self.depth_tv.record(&mut enc, rays_out, &bufs.rays, &self.d_rays, n, n_tv, r.patch_size, lambda, acc_weight);
         }
         self.renderer.backward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, &self.d_rays, &self.field_grads, false)?;
+        let (live, compaction) = &self.live;
+        compaction.record(gpu, &mut enc, &bufs.batch, &self.field_grads, plan.normals(), live)?;
         enc.submit();
         Ok(())
     }
@@ -371,4 +379,9 @@ impl Pipeline {
             priors,
         })
     }
+}
+
+/// The list of live samples and its compaction, for batches of `capacity` samples.
+fn live_list(gpu: &Gpu, capacity: u32) -> Result<(LiveSamples, LiveCompaction), TrainError> {
+    Ok((LiveSamples::new(gpu, capacity)?, LiveCompaction::new(gpu, capacity)?))
 }

@@ -137,7 +137,7 @@ use std::sync::{Arc, OnceLock};
 use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
-use crate::layout::{FieldGrads, FieldOutputs, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, LiveSamples, SampleBatch};
 use codegen::GridKernel;
 
 /// Outputs of the density MLP (the first is the pre-activation density).
@@ -477,6 +477,8 @@ struct FinalizeParams {
 }
 
 const FLAG_NORMALS: u32 = 1;
+/// Backward: `count` is a [`LiveSamples`] list, thread `t` of a chunk runs its entry.
+const FLAG_LIVE: u32 = 2;
 
 use Binding::{Params as P, ReadOnly as R, ReadWrite as RW, Uniform as U};
 
@@ -800,10 +802,16 @@ impl Field for GridField {
         Ok(())
     }
 
-    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
+    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, live: Option<&LiveSamples>, normal_grads: bool)
     -> Result<(), GpuError> {
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");
+        // With a live list, its count takes count[0]'s place and chunk k runs the list's
+        // entries k * chunk.. (FLAG_LIVE): the chunks past the list's end are empty.
+        if let Some(l) = live {
+            assert!(l.capacity >= cap, "backward: live list of {} for a batch of {cap}", l.capacity);
+        }
+        let count = live.map_or(&batch.count.buffer, |l| &l.list.buffer);
         self.ensure_scratch(gpu, cap)?;
         let chunk = self.scratch.as_ref().expect("scratch allocated above").chunk;
         let n_chunks = cap.div_ceil(chunk).max(1);
@@ -829,14 +837,14 @@ impl Field for GridField {
             let m = product(region::A1, region::DG, w4, in4, w, &self.normal_m, 0, l.in_pad);
             products.push(OuterProduct { mask_d: true, ..m });
         }
-        let flags = if normal_grads { FLAG_NORMALS } else { 0 };
+        let flags = if normal_grads { FLAG_NORMALS } else { 0 } | if live.is_some() { FLAG_LIVE } else { 0 };
         let args = self.indirect.as_ref().expect("made above");
         let mut enc = gpu.encoder();
         if normal_grads {
             enc.clear(&self.normal_m.buffer);
         }
         enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
-        args.record(&mut enc, &batch.count.buffer, cap, chunk, n_chunks)?;
+        args.record(&mut enc, count, cap, chunk, n_chunks)?;
         let mut start = 0u32;
         while start < cap {
             let len = chunk.min(cap - start);
@@ -849,7 +857,7 @@ impl Field for GridField {
                     &self.table.buffer,
                     &self.mlp_uniform,
                     &batch.samples.buffer,
-                    &batch.count.buffer,
+                    count,
                     &grads.rgb_density.buffer,
                     &grads.normal.buffer,
                     &self.table_grad.buffer,
@@ -880,7 +888,7 @@ impl Field for GridField {
                 let pb = enc.params(&p);
                 enc.dispatch_threads(
                     &outer,
-                    &[&pb, &batch.count.buffer, &scratch.buffer.buffer, &pr.grad.buffer],
+                    &[&pb, count, &scratch.buffer.buffer, &pr.grad.buffer],
                     p.tiles_o * p.tiles_i * groups,
                 );
             }

@@ -220,7 +220,7 @@ fn field_grid_gpu_encoding_and_mlps_match_reference() {
     // Negligible output gradients (all-zero ones skip the sample): the backward writes
     // its per-sample forward values.
     let tiny = LossWeights { a: vec![1e-30; n], b: vec![[0.0; 4]; n], c: vec![[0.0; 4]; n] };
-    s.field.backward(&s.gpu, &s.batch, &tiny.upload(&s.gpu, 128), true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &tiny.upload(&s.gpu, 128), None, true).unwrap();
     let (density, rgb, _) = out.read(&s.gpu).unwrap();
     let e_rows = scratch_rows(&s, region::E);
     let a1_rows = scratch_rows(&s, region::A1);
@@ -260,7 +260,7 @@ fn field_grid_mlp_gradients_match_finite_differences() {
         let m = s.field.reference(&s.gpu).unwrap();
         let w = LossWeights::random(n, 22, wa, wb, 0.0);
         s.field.zero_grads(&s.gpu);
-        s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), false).unwrap();
+        s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), None, false).unwrap();
         let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
         let cpu = w.cpu_grads(&m, &s.samples, false);
         assert_close(&format!("{name}: mlp grads GPU vs CPU"), &gpu_mlp, &cpu.mlp, 2e-4, 2e-3);
@@ -355,7 +355,7 @@ fn end_to_end(cfg: &GridConfig, disable_float_atomics: bool, n: usize, fd_checks
     let m = s.field.reference(&s.gpu).unwrap();
     let w = LossWeights::random(n, 42, 1.0, 1.0, 1.0);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), None, true).unwrap();
     let gpu_table = to_f64(&s.field.table_grad.read(&s.gpu).unwrap());
     let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
     let cpu = w.cpu_grads(&m, &s.samples, true);
@@ -506,7 +506,7 @@ fn field_grid_level_annealing_masks_levels() {
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
     let w = LossWeights::random(n, 52, 1.0, 1.0, 1.0);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 64), None, true).unwrap();
     let e_rows = scratch_rows(&s, region::E);
     for i in 0..n {
         let e = scratch_vec(&e_rows, i);
@@ -554,7 +554,7 @@ fn field_grid_density_queries_match_forward_and_softplus() {
             let m = s.field.reference(&s.gpu).unwrap();
             let w = LossWeights::random(n, 62, 1.0, 0.5, 1.0);
             s.field.zero_grads(&s.gpu);
-            s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), true).unwrap();
+            s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 128), None, true).unwrap();
             let cpu = w.cpu_grads(&m, &s.samples, true);
             let gpu_mlp = to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
             assert_close("softplus mlp grads", &gpu_mlp, &cpu.mlp, 3e-4, 3e-3);
@@ -582,15 +582,32 @@ fn field_grid_backward_skips_samples_without_gradient_exactly() {
     (w.a[26], w.b[26]) = (0.0, [0.0; 4]);
     (w.b[27], w.c[27]) = ([0.0; 4], [0.0; 4]);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), None, true).unwrap();
     let scratch = s.field.scratch.as_ref().unwrap();
     scratch.buffer.write(&s.gpu, &vec![[f32::NAN; 4]; scratch.buffer.len()]);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &w.upload(&s.gpu, 256), None, true).unwrap();
     let m = s.field.reference(&s.gpu).unwrap();
     let cpu = w.cpu_grads(&m, &s.samples, true);
     assert_close("table grads with skipped samples", &to_f64(&s.field.table_grad.read(&s.gpu).unwrap()), &cpu.table, 3e-4, 3e-3);
     assert_close("mlp grads with skipped samples", &to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
+
+    // The same through the list of the samples that carry gradient (the sampler's live
+    // compaction writes it in training): only those run, in chunks of the list.
+    let grads = w.upload(&s.gpu, 256);
+    let listed: Vec<u32> =
+        (0..n).filter(|&i| w.a[i] != 0.0 || w.b[i] != [0.0; 4] || w.c[i] != [0.0; 4]).map(|i| i as u32).collect();
+    assert!(listed.len() > 64 && listed.len() < n - 64, "several chunks, some of them empty");
+    let live = LiveSamples::new(&s.gpu, 256).unwrap();
+    // Stale entries past the list's end point at samples with gradient: they must not run.
+    let mut stale = listed.clone();
+    stale.resize(256, 3);
+    live.write(&s.gpu, &stale);
+    live.write(&s.gpu, &listed);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &grads, Some(&live), true).unwrap();
+    assert_close("table grads of the live list", &to_f64(&s.field.table_grad.read(&s.gpu).unwrap()), &cpu.table, 3e-4, 3e-3);
+    assert_close("mlp grads of the live list", &to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
 }
 
 #[test]
@@ -603,14 +620,14 @@ fn field_grid_backward_chunks_and_accumulation() {
     let w = LossWeights::random(n, 72, 1.0, 1.0, 1.0);
     let grads = w.upload(&s.gpu, 256);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &grads, true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
     assert_eq!(s.field.scratch.as_ref().unwrap().chunk, 64);
     let chunked = (s.field.table_grad.read(&s.gpu).unwrap(), s.field.mlp_grad.read(&s.gpu).unwrap());
     let m = s.field.reference(&s.gpu).unwrap();
     let cpu = w.cpu_grads(&m, &s.samples, true);
     assert_close("chunked table", &to_f64(&chunked.0), &cpu.table, 3e-4, 3e-3);
     assert_close("chunked mlp", &to_f64(&chunked.1), &cpu.mlp, 3e-4, 3e-3);
-    s.field.backward(&s.gpu, &s.batch, &grads, true).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
     let twice = s.field.mlp_grad.read(&s.gpu).unwrap();
     let doubled: Vec<f64> = cpu.mlp.iter().map(|v| 2.0 * v).collect();
     assert_close("accumulated mlp", &to_f64(&twice), &doubled, 3e-4, 3e-3);

@@ -83,7 +83,7 @@ use gemm::{Dense, Kernels, View};
 
 use super::{Field, FieldError, NamedArray, ParamGroup};
 use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
-use crate::layout::{FieldGrads, FieldOutputs, GpuSample, SampleBatch};
+use crate::layout::{FieldGrads, FieldOutputs, GpuSample, LiveSamples, SampleBatch};
 
 /// Name of the parameter group.
 pub const PARAMS_NAME: &str = "mlp.params";
@@ -558,7 +558,9 @@ impl Field for MlpField {
         Ok(())
     }
 
-    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, normal_grads: bool)
+    /// Runs every sample: the list of live samples is not used (the MLP's chunked
+    /// matrix kernels take contiguous samples; zero-gradient ones add exact zeros).
+    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, _live: Option<&LiveSamples>, normal_grads: bool)
     -> Result<(), GpuError> {
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");

@@ -285,7 +285,7 @@ fn gradients_match_finite_differences(encoding: PositionEncoding, normals: bool)
     let w = LossWeights::random(n, 62, 1.0, 1.0, 1.0);
     let g_out = w.upload(&s.gpu, cap);
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &g_out, normals).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &g_out, None, normals).unwrap();
     let gpu = to_f64(&s.field.grads.read(&s.gpu).unwrap());
     let mut params = m.params.clone();
     let fd: Vec<f64> = (0..params.len())
@@ -295,7 +295,7 @@ fn gradients_match_finite_differences(encoding: PositionEncoding, normals: bool)
     if normals {
         // The second-order path matters: the first-order gradients differ.
         s.field.zero_grads(&s.gpu);
-        s.field.backward(&s.gpu, &s.batch, &g_out, false).unwrap();
+        s.field.backward(&s.gpu, &s.batch, &g_out, None, false).unwrap();
         let first = to_f64(&s.field.grads.read(&s.gpu).unwrap());
         let diff = first.iter().zip(&gpu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         assert!(diff > 1e-3 * gpu.iter().fold(0.0f64, |a, v| a.max(v.abs())), "normal path has no effect");
@@ -304,7 +304,7 @@ fn gradients_match_finite_differences(encoding: PositionEncoding, normals: bool)
     let out = FieldOutputs::new(&s.gpu, cap).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, normals).unwrap();
     s.field.zero_grads(&s.gpu);
-    s.field.backward(&s.gpu, &s.batch, &g_out, normals).unwrap();
+    s.field.backward(&s.gpu, &s.batch, &g_out, None, normals).unwrap();
     assert_close("backward after forward", &to_f64(&s.field.grads.read(&s.gpu).unwrap()), &gpu, 1e-6, 1e-5);
 }
 

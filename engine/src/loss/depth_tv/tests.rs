@@ -160,7 +160,7 @@ fn depth_tv_end_to_end_matches_finite_differences() {
     enc.submit();
     let gpu_loss = tv.loss(&gpu, n_rays as u32).unwrap() as f64;
     field_dyn.zero_grads(&gpu);
-    field_dyn.backward(&gpu, &batch, &grads, false).unwrap();
+    field_dyn.backward(&gpu, &batch, &grads, None, false).unwrap();
     let [(_, table_grad), (_, mlp_grad)] = field.buffers();
     let (table_grad, mlp_grad) = (table_grad.read(&gpu).unwrap(), mlp_grad.read(&gpu).unwrap());
 

@@ -217,7 +217,7 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget, depth_estimate: De
     enc.submit();
     let gpu_loss = reg.losses(&gpu, n_patches as u32).unwrap();
     field.zero_grads(&gpu);
-    field.backward(&gpu, &batch, &grads, true).unwrap();
+    field.backward(&gpu, &batch, &grads, None, true).unwrap();
     let [(_, table_grad), (_, mlp_grad)] = field.buffers();
     let (table_grad, mlp_grad) = (table_grad.read(&gpu).unwrap(), mlp_grad.read(&gpu).unwrap());
 
