@@ -150,7 +150,9 @@ pub struct RegConfig {
     /// `lambda1`, the weight of the photometric `L_c` (the paper: 1).
     pub lambda_color: f32,
     /// Weight of the edge-guided depth-normal consistency ([`super::depth_normal`]) on
-    /// the same patches and schedule (0: off).
+    /// the same patches and schedule (0: off). A normal regularizer: `normal = false`
+    /// switches it off with `L_n`, so `--no-depth-reg --no-normal-reg` is no
+    /// regularizer with any preset.
     pub lambda_depth_normal: f32,
 }
 
@@ -188,7 +190,7 @@ impl RegConfig {
     pub fn any(&self, dtu_scene: bool) -> bool {
         (self.depth && self.lambda_depth > 0.0)
             || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
-            || self.lambda_depth_normal > 0.0
+            || (self.normal && self.lambda_depth_normal > 0.0)
     }
 
     /// The weights of step `step` (schedule applied), `None` when nothing is active.
@@ -209,7 +211,7 @@ impl RegConfig {
             tau_normal: self.tau_normal,
             depth_target: self.depth_target,
             depth_estimate: self.depth_estimate,
-            lambda_depth_normal: ramp * self.lambda_depth_normal,
+            lambda_depth_normal: if self.normal { ramp * self.lambda_depth_normal } else { 0.0 },
         };
         (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0).then_some(w)
     }

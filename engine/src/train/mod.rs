@@ -394,7 +394,9 @@ impl Trainer {
             });
         }
         let masks = self.edge_masks.as_deref().expect("computed above");
-        Ok(rays::random_patches(&self.scene, masks, n / 4, self.config().train.images_per_step, seed, step))
+        let n_patches = self.config().train.patches_per_batch();
+        let images = self.config().train.images_per_step;
+        Ok(rays::random_patches(&self.scene, masks, n_patches, n - 4 * n_patches, images, seed, step))
     }
 
     /// One optimisation step on a given batch of `train.rays_per_batch` rays (patch

@@ -3,7 +3,8 @@
 //!
 //! Two kinds of batches: single pixels uniform over all training views
 //! ([`random_pixels`]), and 2x2 patches of a few views with their edge masks
-//! ([`random_patches`], what the edge-guided regularizers read).
+//! ([`random_patches`], what the edge-guided regularizers read), optionally followed by
+//! single pixels that only the photometric loss sees (edge weight 0).
 //!
 //! Invariants: a ray's `[t_min, t_max]` is the scene's near/far range clipped to the
 //! scene AABB (world-space scenes) or `[0, 1]` (NDC scenes); a ray that misses the
@@ -91,10 +92,16 @@ fn drawable(scene: &Scene, view: usize, x: u32, y: u32) -> bool {
 /// Draws `n` training pixels for `step`, uniform over the pixels of all training views
 /// (a pure function of `seed` and `step`).
 pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch {
-    let mut rng = step_rng(seed, step);
+    let mut batch = PixelBatch::default();
+    draw_pixels(scene, n, &mut step_rng(seed, step), &mut batch, false);
+    batch
+}
+
+/// Appends `n` pixels uniform over the pixels of all training views, drawn from `rng`;
+/// with `reg`, each with edge weight 0 (`(0, z_scale)`: no regularizer reads it).
+fn draw_pixels(scene: &Scene, n: u32, rng: &mut SplitMix64, batch: &mut PixelBatch, reg: bool) {
     let train = &scene.split.train;
     let (w, h) = scene.image_size();
-    let mut batch = PixelBatch::default();
     for _ in 0..n {
         let view = train[rng.below(train.len() as u64) as usize];
         let (mut x, mut y) = (0, 0);
@@ -105,21 +112,28 @@ pub fn random_pixels(scene: &Scene, n: u32, seed: u64, step: u64) -> PixelBatch 
                 break;
             }
         }
-        batch.push(scene, view, x, y);
+        let z_scale = batch.push(scene, view, x, y);
+        if reg {
+            batch.reg.push([0.0, z_scale]);
+        }
     }
-    batch
 }
 
 /// Draws `n_patches` random 2x2 patches for `step` (EdgeNeRF's batches): from
 /// `images_per_step` distinct training views chosen at random (the paper: one), patches
 /// dealt to them in turn, top-left corners uniform over the image. Rays
 /// `4m .. 4m+3` are patch `m` in the order `(x, y), (x+1, y), (x, y+1), (x+1, y+1)`.
-/// `masks[i]` is the edge mask of `scene.split.train[i]`. A pure function of `seed` and
+/// `masks[i]` is the edge mask of `scene.split.train[i]`. After the patches come
+/// `n_pixels` single pixels uniform over all training views with edge weight 0 (`0`:
+/// none), so that a batch can carry fewer patches than rays (`train.patch_share`): every
+/// group of 4 of them is an all-edge "patch" to the regularizers, which adds nothing,
+/// while the photometric loss sees more distinct pixels. A pure function of `seed` and
 /// `step`.
 pub fn random_patches(
     scene: &Scene,
     masks: &[EdgeMask],
     n_patches: u32,
+    n_pixels: u32,
     images_per_step: u32,
     seed: u64,
     step: u64,
@@ -154,6 +168,7 @@ pub fn random_patches(
             batch.reg.push([masks[i].at(x, y), z_scale]);
         }
     }
+    draw_pixels(scene, n_pixels, &mut rng, &mut batch, true);
     batch
 }
 
@@ -201,8 +216,11 @@ mod tests {
         let pixels = random_pixels(&scene, 40, 7, 3);
         assert!(pixels.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "single pixels");
         let masks: Vec<EdgeMask> = scene.split.train.iter().map(|_| EdgeMask::all_non_edge(w, h)).collect();
-        let patches = random_patches(&scene, &masks, 10, 1, 7, 3);
-        assert!(patches.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "whole patches");
+        let patches = random_patches(&scene, &masks, 10, 6, 1, 7, 3);
+        assert!(patches.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "whole patches and the pixels after them");
+        // The pixels after the patches carry edge weight 0 (no regularizer reads them).
+        assert_eq!(patches.rays.len(), 46);
+        assert!(patches.reg[..40].iter().all(|r| r[0] == 1.0) && patches.reg[40..].iter().all(|r| r[0] == 0.0 && r[1] > 0.0));
         // Without the mask the same draws reach the rest of the image.
         for &v in &scene.split.train.clone() {
             scene.views[v].train_mask = None;

@@ -315,6 +315,13 @@ fn reg_config_defaults_schedule_and_variants() {
     assert_eq!(depth_only.weights_at(0, false).unwrap().lambda_normal, 0.0);
     let off = RegConfig { normal: false, depth: false, ..c.clone() };
     assert!(off.weights_at(0, false).is_none() && !off.any(false));
+    // L_dn is a normal regularizer: on with L_n, off with it.
+    let dn = RegConfig { depth: false, lambda_depth_normal: 0.01, ..c.clone() };
+    assert_eq!(dn.weights_at(0, false).unwrap().lambda_depth_normal, 0.01);
+    let dn_off = RegConfig { normal: false, ..dn.clone() };
+    assert!(dn_off.weights_at(0, false).is_none() && !dn_off.any(false), "--no-depth-reg --no-normal-reg: no regularizer");
+    let dn_only = RegConfig { lambda_normal: Some(0.0), ..dn };
+    assert_eq!(dn_only.weights_at(0, false).map(|w| (w.lambda_normal, w.lambda_depth_normal)), Some((0.0, 0.01)));
     assert!(RegConfig { lambda_depth: -1.0, ..c.clone() }.validate().is_err());
     assert!(RegConfig { tau_normal: f32::NAN, ..c }.validate().is_err());
 }
