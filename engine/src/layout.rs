@@ -186,22 +186,28 @@ pub type FieldGrads = FieldOutputs;
 /// `k`-th live sample for `k < n`.
 pub struct LiveSamples {
     pub list: GpuBuffer<u32>,
-    pub capacity: u32,
 }
 
 impl LiveSamples {
-    /// Entries before the first index (a `vec4` of header, so the indices stay aligned).
+    /// Entries before the first index (a `vec4` of header, so the indices stay aligned);
+    /// `LIVE_HEADER` in `common/layout.wgsl`.
     pub const HEADER: u32 = 4;
 
     pub fn new(gpu: &Gpu, capacity: u32) -> Result<Self, GpuError> {
         let len = (capacity + Self::HEADER) as usize;
-        Ok(Self { list: GpuBuffer::zeros(gpu, "live samples", len)?, capacity })
+        Ok(Self { list: GpuBuffer::zeros(gpu, "live samples", len)? })
+    }
+
+    /// Samples the list has room for.
+    pub fn capacity(&self) -> u32 {
+        self.list.len() as u32 - Self::HEADER
     }
 
     /// Writes the list `indices` from the host (tests).
     pub fn write(&self, gpu: &Gpu, indices: &[u32]) {
-        assert!(indices.len() <= self.capacity as usize, "{} live samples, room for {}", indices.len(), self.capacity);
-        let mut list = vec![indices.len() as u32, 0, 0, 0];
+        assert!(indices.len() <= self.capacity() as usize, "{} live samples, room for {}", indices.len(), self.capacity());
+        let mut list = vec![0; Self::HEADER as usize];
+        list[0] = indices.len() as u32;
         list.extend_from_slice(indices);
         self.list.write(gpu, &list);
     }
@@ -209,7 +215,7 @@ impl LiveSamples {
     /// The live samples' indices (waits for the GPU).
     pub fn read(&self, gpu: &Gpu) -> Result<Vec<u32>, GpuError> {
         let list = self.list.read(gpu)?;
-        let n = (list[0] as usize).min(self.capacity as usize);
+        let n = (list[0] as usize).min(self.capacity() as usize);
         let h = Self::HEADER as usize;
         Ok(list[h..h + n].to_vec())
     }
@@ -227,5 +233,10 @@ mod wgsl_mirrors {
         crate::assert_wgsl_mirror!(SampleRange, "common/layout.wgsl", "SampleRange", [start, count]);
         crate::assert_wgsl_mirror!(GpuSample, "common/layout.wgsl", "Sample", [pos, t, dir, dt]);
         crate::assert_wgsl_mirror!(RayOutput, "common/layout.wgsl", "RayOutput", [rgb, opacity, normal, depth]);
+        // Included by both kernels that read a LiveSamples list (sampler/live.wgsl,
+        // field/grid_backward.wgsl).
+        if let Err(e) = crate::gpu::kernel::tests::check_wgsl_u32_const("common/layout.wgsl", "LIVE_HEADER", LiveSamples::HEADER) {
+            panic!("{e}");
+        }
     }
 }

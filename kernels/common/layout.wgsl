@@ -38,3 +38,7 @@ struct RayAux {
     orientation: f32,
     _pad0: u32,
 }
+
+// LiveSamples (engine/src/layout.rs): one u32 list whose count sits in count[0]'s
+// place; the index of the k-th live sample is at LIVE_HEADER + k.
+const LIVE_HEADER: u32 = 4u;

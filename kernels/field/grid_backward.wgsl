@@ -86,7 +86,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     var i = min(P.chunk_start + local, max(n_valid, 1u) - 1u);
     if ((P.flags & FLAG_LIVE) != 0u) {
         // Clamped: past the list's end (in_chunk false) the entry may be stale.
-        i = min(count[4u + i], max(P.n, 1u) - 1u);
+        i = min(count[LIVE_HEADER + i], max(P.n, 1u) - 1u);
     }
     let d_out = select(vec4<f32>(0.0), d_rgb_density[i], in_chunk);
     let with_normals = (P.flags & FLAG_NORMALS) != 0u;

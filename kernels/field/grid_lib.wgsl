@@ -28,7 +28,7 @@ const ACT_TRUNC_EXP: u32 = 0u;
 const ACT_SOFTPLUS: u32 = 1u;
 const FLAG_NORMALS: u32 = 1u;
 // Backward: `count` is a LiveSamples list (engine/src/layout.rs): count[0] the number
-// of live samples, count[4 + k] the index of the k-th; thread t of a chunk runs entry
+// of live samples, count[LIVE_HEADER + k] the index of the k-th; thread t of a chunk runs entry
 // chunk_start + t.
 const FLAG_LIVE: u32 = 2u;
 

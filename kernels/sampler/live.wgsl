@@ -3,10 +3,11 @@
 // flags[i] = 1 iff i < count[0] and the sample's output gradient (dL/drgb, dL/dsigma
 // and, with `normals`, dL/dn) has a component != 0 (NaN counts: it must reach the
 // optimizer's non-finite check). The host scans flags into offsets (sampler/scan.wgsl);
-// `write_live`: list[4 + offsets[i]] = i for every flagged i, and the last slot's thread
+// `write_live`: list[LIVE_HEADER + offsets[i]] = i for every flagged i, and the last slot's thread
 // writes the total to list[0] (the LiveSamples layout, engine/src/layout.rs).
 
 //#include "common/dispatch.wgsl"
+//#include "common/layout.wgsl"
 
 struct Params {
     capacity: u32,
@@ -14,8 +15,6 @@ struct Params {
     _pad0: u32,
     _pad1: u32,
 }
-
-const HEADER: u32 = 4u;
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> count: array<u32>;
@@ -55,7 +54,7 @@ fn write_live(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     }
     let flag = live_flags[i];
     if (flag != 0u) {
-        list[HEADER + offsets[i]] = i;
+        list[LIVE_HEADER + offsets[i]] = i;
     }
     if (i + 1u == wparams.capacity) {
         list[0] = offsets[i] + flag;

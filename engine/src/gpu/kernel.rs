@@ -469,6 +469,21 @@ pub(crate) mod tests {
         Ok(())
     }
 
+    /// Checks that `file` declares `const <name>: u32 = <value>` (the WGSL side of a Rust
+    /// constant: `assert_wgsl_mirror!`'s twin for constants).
+    pub(crate) fn check_wgsl_u32_const(file: &str, name: &str, value: u32) -> Result<(), String> {
+        let module = validate(file, true).map_err(|e| e.to_string())?;
+        let c = module
+            .constants
+            .iter()
+            .find_map(|(_, c)| (c.name.as_deref() == Some(name)).then_some(c))
+            .ok_or_else(|| format!("{file} declares no constant {name}"))?;
+        match module.global_expressions[c.init] {
+            naga::Expression::Literal(naga::Literal::U32(v)) if v == value => Ok(()),
+            ref e => Err(format!("{file}: {name} is {e:?}, its Rust mirror {value}u")),
+        }
+    }
+
     /// naga's errors for kernel `name` (completed by `generated`) on either float-atomic
     /// path; empty when it validates on both.
     fn validation_problems(name: &str, generated: &str) -> Vec<String> {

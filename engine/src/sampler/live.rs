@@ -45,7 +45,6 @@ struct Params {
 
 /// The kernels and scratch of the compaction, for batches of up to `capacity` samples.
 pub struct LiveCompaction {
-    capacity: u32,
     mark: Arc<Kernel>,
     write: Arc<Kernel>,
     flags: GpuBuffer<u32>,
@@ -57,7 +56,6 @@ impl LiveCompaction {
     pub fn new(gpu: &Gpu, capacity: u32) -> Result<Self, SamplerError> {
         let n = capacity.max(1);
         Ok(Self {
-            capacity: n,
             mark: gpu.kernel(&MARK)?,
             write: gpu.kernel(&WRITE)?,
             flags: GpuBuffer::zeros(gpu, "live flags", n as usize)?,
@@ -78,7 +76,8 @@ impl LiveCompaction {
         live: &LiveSamples,
     ) -> Result<(), SamplerError> {
         let cap = batch.capacity.max(1);
-        assert!(cap <= self.capacity && cap <= live.capacity, "live compaction of {cap} samples, room for {} / {}", self.capacity, live.capacity);
+        let room = self.flags.len() as u32;
+        assert!(cap <= room && cap <= live.capacity(), "live compaction of {cap} samples, room for {room} / {}", live.capacity());
         grads.assert_capacity(batch.capacity, "live compaction: FieldGrads");
         let params = enc.params(&Params { capacity: cap, normals: normals as u32, _pad: [0; 2] });
         enc.dispatch_threads(

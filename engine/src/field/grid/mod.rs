@@ -809,7 +809,7 @@ impl Field for GridField {
         // With a live list, its count takes count[0]'s place and chunk k runs the list's
         // entries k * chunk.. (FLAG_LIVE): the chunks past the list's end are empty.
         if let Some(l) = live {
-            assert!(l.capacity >= cap, "backward: live list of {} for a batch of {cap}", l.capacity);
+            assert!(l.capacity() >= cap, "backward: live list of {} for a batch of {cap}", l.capacity());
         }
         let count = live.map_or(&batch.count.buffer, |l| &l.list.buffer);
         self.ensure_scratch(gpu, cap)?;
@@ -837,7 +837,7 @@ impl Field for GridField {
             let m = product(region::A1, region::DG, w4, in4, w, &self.normal_m, 0, l.in_pad);
             products.push(OuterProduct { mask_d: true, ..m });
         }
-        let flags = if normal_grads { FLAG_NORMALS } else { 0 } | if live.is_some() { FLAG_LIVE } else { 0 };
+        let flags = (if normal_grads { FLAG_NORMALS } else { 0 }) | (if live.is_some() { FLAG_LIVE } else { 0 });
         let args = self.indirect.as_ref().expect("made above");
         let mut enc = gpu.encoder();
         if normal_grads {
