@@ -79,7 +79,11 @@ fn ray_intervals(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
             let b = prims[p];
             let hb = ray_box(ray.origin, inv_d, b.min, b.max);
             let iv = vec2<f32>(max(hb.x, ray.t_min), min(hb.y, ray.t_max));
-            if (iv.x < iv.y && n_raw < RAW_CAP) {
+            // Slivers (a ray grazing a brick's edge or corner) are dropped: shorter than
+            // the touching tolerance, they hold no sample, and whether rounding makes
+            // them empty differs between implementations (NVIDIA kept one that the CPU's
+            // slab test found empty).
+            if (iv.y - iv.x > merge_tolerance(iv.y) && n_raw < RAW_CAP) {
                 // Insertion into raw, sorted by (enter, exit).
                 var j = n_raw;
                 while (j > 0u && (raw[j - 1u].x > iv.x || (raw[j - 1u].x == iv.x && raw[j - 1u].y > iv.y))) {

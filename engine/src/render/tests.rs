@@ -1,10 +1,10 @@
 //! GPU tests of the render room against its CPU reference (`reference.rs`).
 //!
 //! Tolerances, stated once:
-//! * forward: `|gpu - ref| <= 1e-5 * m` per component, `m` the sum of the absolute
+//! * forward: `|gpu - ref| <= 3e-5 * m` per component, `m` the sum of the absolute
 //!   values of the terms summed into it (`sum_i w_i |x_i|`, plus `(1 - opacity) |bg|`
 //!   for colour), floored at 1e-12 (so empty and fully transparent rays must be exact);
-//!   per-sample weights `|gpu - ref| <= 1e-5 * max(w_ref, 1e-7)`.
+//!   per-sample weights `|gpu - ref| <= 3e-5 * max(w_ref, 1e-7)`.
 //! * backward vs central differences of the `f64` reference (`h = 1e-6 max(1, |x|)`,
 //!   accurate to ~1e-10): `dL/dc`, `dL/dn`: `<= 1e-5 |fd| + 1e-7`; `dL/dsigma`:
 //!   `<= 1e-4 |fd| + 2e-6 dt S`, where `S = sum_j w_j |u_j| + |total|` bounds the
@@ -188,6 +188,11 @@ fn near_threshold(r: &RefRay, threshold: f32, k_gpu: usize) -> bool {
     threshold > 0.0 && (t / threshold as f64 - 1.0).abs() < 1e-4
 }
 
+/// Relative tolerance of the GPU forward against the f64 reference. Vulkan lets `exp`
+/// be off by 3 + 2|x| ULP, and the transmittance multiplies one per sample: lavapipe's
+/// worst is 7.8e-6, NVIDIA's (H200, driver 580) 1.34e-5 on one ray's colour.
+const GPU_REL_TOL: f64 = 3e-5;
+
 /// Compares GPU forward outputs with the reference; returns the rays checked.
 fn check_forward(h: &HostBatch, cfg: &RenderConfig, seed: u32, fwd: &Forward) -> usize {
     let refs = reference_of(h, cfg, seed);
@@ -217,7 +222,7 @@ fn check_forward(h: &HostBatch, cfg: &RenderConfig, seed: u32, fwd: &Forward) ->
         };
         let mut check = |what: &str, got: f32, want: f64, m: f64| {
             let err = (got as f64 - want).abs();
-            let tol = 1e-5 * m.max(1e-12);
+            let tol = GPU_REL_TOL * m.max(1e-12);
             worst = worst.max(err / m.max(1e-12));
             assert!(err <= tol, "ray {r} {what}: gpu {got} ref {want} (err {err:e}, tol {tol:e})");
         };
@@ -231,7 +236,7 @@ fn check_forward(h: &HostBatch, cfg: &RenderConfig, seed: u32, fwd: &Forward) ->
         let start = h.ranges[r].start as usize;
         for (i, &w) in want.weights.iter().enumerate() {
             let g = fwd.weights[start + i] as f64;
-            assert!((g - w).abs() <= 1e-5 * w.max(1e-7), "ray {r} sample {i}: weight gpu {g} ref {w}");
+            assert!((g - w).abs() <= GPU_REL_TOL * w.max(1e-7), "ray {r} sample {i}: weight gpu {g} ref {w}");
             if i >= want.n_contrib {
                 assert_eq!(g, 0.0, "ray {r} sample {i}: weight past termination");
             }
