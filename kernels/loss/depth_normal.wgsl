@@ -7,10 +7,14 @@
 // termination), P_i = o_i + t_i d_i. The patch's depth normal is the cross product of
 // its two central differences, a = P1 - P0 + P3 - P2, b = P2 - P0 + P3 - P1,
 // c = a x b, n_d = s c / |c| with s = -sign(<c, d0 + d1 + d2 + d3>) (facing the
-// cameras). With E = e0 e1 e2 e3 (all four pixels non-edge):
-//   L = 1/M sum_m E_m / 4 sum_i (1 - <n_i, n_d>)
-// Gradients (added to d_rays, times lambda):
-//   dL/dn_i = -E n_d / (4M);  q = dL/dn_d = -E sum_i n_i / (4M)
+// cameras). With E = e0 e1 e2 e3 (all four pixels non-edge) and the residual
+// r_i = b_i - <n_i, n_d>, b_i = 1 ("dot", 2DGS), |n_i| ("direction": zero for any
+// normal along n_d whatever its length) or the ray's opacity ("per_sample": since
+// n_i = sum_j w_j n_j, opacity_i - <n_i, n_d> = sum_j w_j (1 - <n_j, n_d>)):
+//   L = 1/M sum_m E_m / 4 sum_i r_i
+// Gradients (added to d_rays, times lambda), k = E / (4M):
+//   dL/dn_i = k (-n_d [+ n_i / |n_i| for "direction"]);  dL/dopacity_i = k ("per_sample")
+//   q = dL/dn_d = -k sum_i n_i
 //   dL/dc = s (q - <q, c^> c^) / |c|,  dL/da = b x dL/dc,  dL/db = dL/dc x a
 //   dL/dP0 = -ga - gb, dL/dP1 = ga - gb, dL/dP2 = gb - ga, dL/dP3 = ga + gb
 //   dL/dt_i = <dL/dP_i, d_i>, then to depth (and opacity, given termination).
@@ -25,6 +29,8 @@ struct Params {
     given_termination: u32,
     lambda: f32,
     opacity_floor: f32,
+    // b_i of the residual: 0 "dot" (1), 1 "direction" (|n_i|), 2 "per_sample" (opacity_i).
+    residual: u32,
 }
 
 @group(0) @binding(0) var<storage, read> params: Params;
@@ -52,7 +58,9 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     var dir: array<vec3<f32>, 4>;
     var dt_ddepth: array<f32, 4>;
     var dt_dopacity: array<f32, 4>;
+    var normal: array<vec3<f32>, 4>;
     var n_sum = vec3<f32>(0.0);
+    var b_sum = 0.0;
     var d_sum = vec3<f32>(0.0);
     for (var i = 0u; i < 4u; i++) {
         let out = rays[base + i];
@@ -68,7 +76,9 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         }
         dir[i] = ray.dir;
         p[i] = ray.origin + t * ray.dir;
+        normal[i] = out.normal;
         n_sum += out.normal;
+        b_sum += select(select(1.0, length(out.normal), params.residual == 1u), out.opacity, params.residual == 2u);
         d_sum += ray.dir;
     }
     let a = p[1] - p[0] + p[3] - p[2];
@@ -83,7 +93,7 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     let s = select(1.0, -1.0, dot(c_hat, d_sum) > 0.0);
     let n_d = s * c_hat;
     let k = all_non_edge / (4.0 * f32(params.n_patches));
-    patch_loss[m] = k * (4.0 - dot(n_sum, n_d));
+    patch_loss[m] = k * (b_sum - dot(n_sum, n_d));
     let q = -k * n_sum;
     let g_c = s * (q - dot(q, c_hat) * c_hat) / len;
     let g_a = cross(b, g_c);
@@ -99,7 +109,14 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         var d = d_rays[base + i];
         d.depth += lambda * g_t * dt_ddepth[i];
         d.opacity += lambda * g_t * dt_dopacity[i];
-        d.normal += (-lambda * k) * n_d;
+        var g_n = -n_d;
+        if (params.residual == 1u) {
+            g_n += normal[i] / max(length(normal[i]), 1e-12);
+        }
+        d.normal += (lambda * k) * g_n;
+        if (params.residual == 2u) {
+            d.opacity += lambda * k;
+        }
         d_rays[base + i] = d;
     }
 }

@@ -22,8 +22,17 @@
 //! ```
 //! Gradients flow to both sides: the rendered normals (toward `n_d`) and, through
 //! `n_d`, the depths (the depth map turns its surface toward the normals). The
-//! rendered normal is not renormalised (as in 2DGS): `1 - <n, n_d>` also falls as the
-//! ray's opacity rises toward 1 along a consistent normal.
+//! rendered normal is not renormalised. With the `dot` residual (2DGS), `1 - <n, n_d>`
+//! also falls as the ray's opacity rises toward 1 along a consistent normal, so the
+//! loss rewards density wherever it acts: on the untuned `room` it grows fog sheets
+//! facing the training cameras. Two residuals without that reward
+//! (`reg.depth_normal_residual`) replace the 1 by
+//! * `|n_i|` (`direction`): `|n_i| (1 - cos)`, zero for any normal along `n_d` whatever
+//!   its length; only the normals' direction and the depths are pulled;
+//! * `opacity_i` (`per_sample`): `opacity_i - <n_i, n_d> = sum_j w_j (1 - <n_j, n_d>)`
+//!   over the ray's samples, each sample's normal against the depth normal weighted by
+//!   its share of the ray: zero for a ray whose samples all face `n_d`, and density
+//!   whose normals disagree with the surface (fog) is pushed down.
 //!
 //! Invariants: the kernel only *adds* to `d_rays`; it reads the forward outputs of the
 //! same batch and the rays they were rendered from (`GpuRay`, unit directions); the
@@ -35,6 +44,30 @@ use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::{GpuRay, RayOutput};
 
 use super::edge_reg::{DepthEstimate, OPACITY_FLOOR};
+
+/// The per-ray residual of `L_dn` (`reg.depth_normal_residual`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthNormalResidual {
+    /// `1 - <n, n_d>` (2DGS): also lowered by raising the ray's opacity.
+    #[default]
+    Dot,
+    /// `|n| - <n, n_d>`: zero for any normal along `n_d`; no pull on opacity.
+    Direction,
+    /// `opacity - <n, n_d>`: every sample's `1 - <n_j, n_d>` weighted by `w_j`.
+    PerSample,
+}
+
+impl DepthNormalResidual {
+    /// The kernel's `Params::residual`.
+    fn code(self) -> u32 {
+        match self {
+            Self::Dot => 0,
+            Self::Direction => 1,
+            Self::PerSample => 2,
+        }
+    }
+}
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/depth_normal.wgsl",
@@ -56,6 +89,7 @@ struct Params {
     given_termination: u32,
     lambda: f32,
     opacity_floor: f32,
+    residual: u32,
 }
 
 /// The depth-normal consistency kernel and its per-patch losses.
@@ -86,6 +120,7 @@ impl DepthNormal {
         n_patches: u32,
         lambda: f32,
         estimate: DepthEstimate,
+        residual: DepthNormalResidual,
     ) {
         let n_rays = 4 * n_patches as usize;
         assert!(rays.len() >= n_rays && geometry.len() >= n_rays && pixel.len() >= n_rays && d_rays.len() >= n_rays);
@@ -95,6 +130,7 @@ impl DepthNormal {
             given_termination: (estimate == DepthEstimate::GivenTermination) as u32,
             lambda,
             opacity_floor: OPACITY_FLOOR,
+            residual: residual.code(),
         });
         enc.dispatch_threads(
             &self.kernel,
@@ -111,7 +147,7 @@ impl DepthNormal {
 
 /// `f64` CPU reference of the loss and its gradients (tests; the kernel in plain Rust).
 pub mod reference {
-    use super::{DepthEstimate, OPACITY_FLOOR};
+    use super::{DepthEstimate, DepthNormalResidual, OPACITY_FLOOR};
     use glam::DVec3;
 
     /// One ray of a patch as the loss sees it.
@@ -159,7 +195,7 @@ pub mod reference {
     }
 
     /// `L_dn` of `rays` (a multiple of 4) and its gradients per ray.
-    pub fn loss(rays: &[PatchRay], estimate: DepthEstimate) -> (f64, Vec<RayGrad>) {
+    pub fn loss(rays: &[PatchRay], estimate: DepthEstimate, residual: DepthNormalResidual) -> (f64, Vec<RayGrad>) {
         assert_eq!(rays.len() % 4, 0);
         let m = (rays.len() / 4) as f64;
         let mut total = 0.0;
@@ -183,14 +219,26 @@ pub mod reference {
             let n_d = s * c_hat;
             let k = e / (4.0 * m);
             let n_sum: DVec3 = patch.iter().map(|r| r.normal).sum();
-            total += k * (4.0 - n_sum.dot(n_d));
+            let base: f64 = patch
+                .iter()
+                .map(|r| match residual {
+                    DepthNormalResidual::Dot => 1.0,
+                    DepthNormalResidual::Direction => r.normal.length(),
+                    DepthNormalResidual::PerSample => r.opacity,
+                })
+                .sum();
+            total += k * (base - n_sum.dot(n_d));
             let q = -k * n_sum;
             let g_c = s * (q - q.dot(c_hat) * c_hat) / len;
             let (g_a, g_b) = (b.cross(g_c), g_c.cross(a));
             let g_p = [-g_a - g_b, g_a - g_b, g_b - g_a, g_a + g_b];
             for (i, r) in patch.iter().enumerate() {
                 let g_t = g_p[i].dot(r.dir);
-                grads[4 * pi + i] = RayGrad { depth: g_t * ends[i].1, opacity: g_t * ends[i].2, normal: -k * n_d };
+                let along =
+                    if residual == DepthNormalResidual::Direction { r.normal / r.normal.length().max(1e-12) } else { DVec3::ZERO };
+                let d_opacity = if residual == DepthNormalResidual::PerSample { k } else { 0.0 };
+                grads[4 * pi + i] =
+                    RayGrad { depth: g_t * ends[i].1, opacity: g_t * ends[i].2 + d_opacity, normal: k * (along - n_d) };
             }
         }
         (total, grads)
@@ -205,6 +253,10 @@ mod tests {
     use super::*;
     use crate::gpu::test_gpu;
     use crate::rng::SplitMix64;
+
+    const ESTIMATES: [DepthEstimate; 2] = [DepthEstimate::Expected, DepthEstimate::GivenTermination];
+    const RESIDUALS: [DepthNormalResidual; 3] =
+        [DepthNormalResidual::Dot, DepthNormalResidual::Direction, DepthNormalResidual::PerSample];
 
     /// Patches of a pinhole camera at the origin looking down -z at slanted planes,
     /// perturbed, some pixels on edges, some rays below the opacity floor.
@@ -245,17 +297,32 @@ mod tests {
         for est in [DepthEstimate::Expected, DepthEstimate::GivenTermination] {
             let n = depth_normal(&rays, est).unwrap();
             assert!((n - DVec3::Z).length() < 1e-12, "{n}");
-            let (l, g) = loss(&rays, est);
-            assert!(l.abs() < 1e-12, "{l}");
-            assert!(g.iter().all(|g| g.depth.abs() < 1e-12), "a consistent patch pulls no depth");
+            for res in RESIDUALS {
+                let (l, g) = loss(&rays, est, res);
+                assert!(l.abs() < 1e-12, "{l}");
+                assert!(g.iter().all(|g| g.depth.abs() < 1e-12), "a consistent patch pulls no depth");
+            }
+            // A half-transparent ray along the same normal: the dot residual asks for
+            // more opacity (a longer normal), the direction residual is satisfied.
+            let faint: Vec<PatchRay> = rays.iter().map(|r| PatchRay { normal: 0.5 * r.normal, ..*r }).collect();
+            let (l_dot, g_dot) = loss(&faint, est, DepthNormalResidual::Dot);
+            assert!((l_dot - 0.5).abs() < 1e-12 && g_dot.iter().all(|g| g.normal.z < 0.0), "{l_dot}");
+            let (l_dir, g_dir) = loss(&faint, est, DepthNormalResidual::Direction);
+            assert!(l_dir.abs() < 1e-12 && g_dir.iter().all(|g| g.normal.length() < 1e-12), "{l_dir}");
+            // Per sample: the faint rays at half opacity are consistent; at full opacity
+            // half their density faces elsewhere (cancelled out), which costs 0.5.
+            let half: Vec<PatchRay> = faint.iter().map(|r| PatchRay { opacity: 0.5, depth: 0.5 * r.depth, ..*r }).collect();
+            assert!(loss(&half, est, DepthNormalResidual::PerSample).0.abs() < 1e-12);
+            let (l_ps, _) = loss(&faint, est, DepthNormalResidual::PerSample);
+            assert!((l_ps - 0.5).abs() < 1e-12, "{l_ps}");
         }
     }
 
     #[test]
     fn reference_gradients_match_finite_differences() {
         let rays = random_patches(23, 5);
-        for est in [DepthEstimate::Expected, DepthEstimate::GivenTermination] {
-            let (_, grads) = loss(&rays, est);
+        for (est, res) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))) {
+            let (_, grads) = loss(&rays, est, res);
             let mut checked = 0;
             for i in 0..rays.len() {
                 let fd = |set: &dyn Fn(&mut PatchRay, f64), x: f64| {
@@ -263,12 +330,12 @@ mod tests {
                     let eval = |v: f64| {
                         let mut r = rays.clone();
                         set(&mut r[i], v);
-                        loss(&r, est).0
+                        loss(&r, est, res).0
                     };
                     (eval(x + h) - eval(x - h)) / (2.0 * h)
                 };
                 let close = |got: f64, want: f64, what: &str| {
-                    assert!((got - want).abs() <= 1e-6 * want.abs().max(1e-3), "{est:?} ray {i} {what}: {got} vs fd {want}");
+                    assert!((got - want).abs() <= 1e-6 * want.abs().max(1e-3), "{est:?} {res:?} ray {i} {what}: {got} vs fd {want}");
                 };
                 close(grads[i].depth, fd(&|r, v| r.depth = v, rays[i].depth), "depth");
                 // The floor is a kink: only differentiate away from it.
@@ -283,7 +350,8 @@ mod tests {
             }
             assert!(checked == rays.len());
             assert!(grads.iter().any(|g| g.depth.abs() > 1e-4), "the depths are pulled");
-            assert!(grads.iter().any(|g| g.opacity.abs() > 1e-4) == (est == DepthEstimate::GivenTermination));
+            let pulls_opacity = est == DepthEstimate::GivenTermination || res == DepthNormalResidual::PerSample;
+            assert!(grads.iter().any(|g| g.opacity.abs() > 1e-4) == pulls_opacity);
         }
     }
 
@@ -308,13 +376,13 @@ mod tests {
         let outs_buf = GpuBuffer::from_slice(&gpu, "rays", &outs).unwrap();
         let geometry_buf = GpuBuffer::from_slice(&gpu, "geometry", &geometry).unwrap();
         let pixel_buf = GpuBuffer::from_slice(&gpu, "pixel", &pixel).unwrap();
-        for est in [DepthEstimate::Expected, DepthEstimate::GivenTermination] {
+        for (est, res) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))) {
             // Pre-filled gradients: the kernel adds.
             let prior: Vec<RayOutput> = (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, normal: [i as f32 * 0.01, 0.0, -1.0], opacity: 0.125 }).collect();
             let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
             let lambda = 0.7;
             let mut enc = gpu.encoder();
-            dn.record(&mut enc, &outs_buf, &geometry_buf, &pixel_buf, &d, n_patches, lambda, est);
+            dn.record(&mut enc, &outs_buf, &geometry_buf, &pixel_buf, &d, n_patches, lambda, est, res);
             enc.submit();
             let got = dn.loss(&gpu, n_patches).unwrap() as f64;
             // The reference on the f32-rounded inputs the kernel saw.
@@ -329,19 +397,19 @@ mod tests {
                     ..*r
                 })
                 .collect();
-            let (want, grads) = loss(&seen, est);
+            let (want, grads) = loss(&seen, est, res);
             assert!(want > 0.1, "the random patches are inconsistent: {want}");
-            assert!((got - want).abs() <= 1e-5 * want, "{est:?}: L_dn {got} vs {want}");
+            assert!((got - want).abs() <= 1e-5 * want, "{est:?} {res:?}: L_dn {got} vs {want}");
             let d = d.read(&gpu).unwrap();
             let scale = grads.iter().map(|g| g.depth.abs()).fold(0.0, f64::max);
             for (i, (g, p)) in grads.iter().zip(&prior).enumerate() {
                 let want_z = p.depth as f64 + lambda as f64 * g.depth;
-                assert!((d[i].depth as f64 - want_z).abs() <= 1e-4 * scale + 1e-6, "{est:?} ray {i}: d depth {} vs {want_z}", d[i].depth);
+                assert!((d[i].depth as f64 - want_z).abs() <= 1e-4 * scale + 1e-6, "{est:?} {res:?} ray {i}: d depth {} vs {want_z}", d[i].depth);
                 let want_o = p.opacity as f64 + lambda as f64 * g.opacity;
-                assert!((d[i].opacity as f64 - want_o).abs() <= 1e-4 * scale + 1e-6, "{est:?} ray {i}: d opacity {} vs {want_o}", d[i].opacity);
+                assert!((d[i].opacity as f64 - want_o).abs() <= 1e-4 * scale + 1e-6, "{est:?} {res:?} ray {i}: d opacity {} vs {want_o}", d[i].opacity);
                 for k in 0..3 {
                     let want_n = p.normal[k] as f64 + lambda as f64 * g.normal.to_array()[k];
-                    assert!((d[i].normal[k] as f64 - want_n).abs() <= 1e-6, "{est:?} ray {i}: d normal {k} {} vs {want_n}", d[i].normal[k]);
+                    assert!((d[i].normal[k] as f64 - want_n).abs() <= 1e-6, "{est:?} {res:?} ray {i}: d normal {k} {} vs {want_n}", d[i].normal[k]);
                 }
                 assert_eq!(d[i].rgb, [0.5; 3], "colour gradients untouched");
             }
@@ -364,6 +432,6 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor]);
+        crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor, residual]);
     }
 }

@@ -68,6 +68,7 @@
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
+use super::depth_normal::DepthNormalResidual;
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/edge_reg.wgsl",
@@ -154,6 +155,9 @@ pub struct RegConfig {
     /// switches it off with `L_n`, so `--no-depth-reg --no-normal-reg` is no
     /// regularizer with any preset.
     pub lambda_depth_normal: f32,
+    /// Its per-ray residual: `dot` (`1 - <n, n_d>`, 2DGS) or `direction`
+    /// (`|n| - <n, n_d>`, no reward for opacity; [`super::depth_normal`]).
+    pub depth_normal_residual: DepthNormalResidual,
 }
 
 impl Default for RegConfig {
@@ -172,6 +176,7 @@ impl Default for RegConfig {
             warmup_steps: 0,
             lambda_color: 1.0,
             lambda_depth_normal: 0.0,
+            depth_normal_residual: DepthNormalResidual::Dot,
         }
     }
 }
@@ -212,6 +217,7 @@ impl RegConfig {
             depth_target: self.depth_target,
             depth_estimate: self.depth_estimate,
             lambda_depth_normal: if self.normal { ramp * self.lambda_depth_normal } else { 0.0 },
+            depth_normal_residual: self.depth_normal_residual,
         };
         (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0).then_some(w)
     }
@@ -251,6 +257,7 @@ pub struct EdgeRegWeights {
     pub depth_estimate: DepthEstimate,
     /// The depth-normal consistency's weight (0: off), on the same patches.
     pub lambda_depth_normal: f32,
+    pub depth_normal_residual: DepthNormalResidual,
 }
 
 #[repr(C)]

@@ -337,7 +337,7 @@ impl Pipeline {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
             if w.lambda_depth_normal > 0.0 {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
-                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, w.lambda_depth_normal, w.depth_estimate);
+                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, w.lambda_depth_normal, w.depth_estimate, w.depth_normal_residual);
             }
         }
         if let Some(lambda) = plan.tv {
