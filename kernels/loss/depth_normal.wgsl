@@ -15,6 +15,8 @@
 // Gradients (added to d_rays, times lambda), k = E / (4M):
 //   dL/dn_i = k (-n_d [+ n_i / |n_i| for "direction"]);  dL/dopacity_i = k ("per_sample")
 //   q = dL/dn_d = -k sum_i n_i
+// With coherence_power p > 0, k is scaled by the patch's gate g = (mean_i c_i)^p,
+// c_i = min(1, |n_i| / max(opacity_i, floor)), a constant of the backward.
 //   dL/dc = s (q - <q, c^> c^) / |c|,  dL/da = b x dL/dc,  dL/db = dL/dc x a
 //   dL/dP0 = -ga - gb, dL/dP1 = ga - gb, dL/dP2 = gb - ga, dL/dP3 = ga + gb
 //   dL/dt_i = <dL/dP_i, d_i>, then to depth (and opacity, given termination).
@@ -31,6 +33,8 @@ struct Params {
     opacity_floor: f32,
     // b_i of the residual: 0 "dot" (1), 1 "direction" (|n_i|), 2 "per_sample" (opacity_i).
     residual: u32,
+    // Exponent of the coherence gate (0: none).
+    coherence_power: f32,
 }
 
 @group(0) @binding(0) var<storage, read> params: Params;
@@ -61,6 +65,7 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     var normal: array<vec3<f32>, 4>;
     var n_sum = vec3<f32>(0.0);
     var b_sum = 0.0;
+    var coherence = 0.0;
     var d_sum = vec3<f32>(0.0);
     for (var i = 0u; i < 4u; i++) {
         let out = rays[base + i];
@@ -78,6 +83,7 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         p[i] = ray.origin + t * ray.dir;
         normal[i] = out.normal;
         n_sum += out.normal;
+        coherence += min(1.0, length(out.normal) / max(out.opacity, params.opacity_floor));
         b_sum += select(select(1.0, length(out.normal), params.residual == 1u), out.opacity, params.residual == 2u);
         d_sum += ray.dir;
     }
@@ -92,7 +98,11 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     let c_hat = c / len;
     let s = select(1.0, -1.0, dot(c_hat, d_sum) > 0.0);
     let n_d = s * c_hat;
-    let k = all_non_edge / (4.0 * f32(params.n_patches));
+    var gate = 1.0;
+    if (params.coherence_power > 0.0) {
+        gate = pow(0.25 * coherence, params.coherence_power);
+    }
+    let k = gate * all_non_edge / (4.0 * f32(params.n_patches));
     patch_loss[m] = k * (b_sum - dot(n_sum, n_d));
     let q = -k * n_sum;
     let g_c = s * (q - dot(q, c_hat) * c_hat) / len;

@@ -34,6 +34,14 @@
 //!   its share of the ray: zero for a ray whose samples all face `n_d`, and density
 //!   whose normals disagree with the surface (fog) is pushed down.
 //!
+//! # Coherence gate
+//! With `reg.depth_normal_coherence = p > 0` each patch's term is scaled by
+//! `g = (1/4 sum_i c_i)^p`, `c_i = min(1, |n_i| / max(opacity_i, OPACITY_FLOOR))`, held
+//! constant in the backward (stop-gradient). `c` is how much the samples of a ray agree
+//! on their normal: near 1 where the ray ends on one surface, small in fog whose
+//! normals cancel out. Where the geometry is still fog the term then waits, instead of
+//! shaping the fog into sheets facing the training cameras (the `room` failure).
+//!
 //! Invariants: the kernel only *adds* to `d_rays`; it reads the forward outputs of the
 //! same batch and the rays they were rendered from (`GpuRay`, unit directions); the
 //! edge weights are [`super::EdgeReg::pixel`]'s `e` (zeroed for rays the sample
@@ -90,6 +98,17 @@ struct Params {
     lambda: f32,
     opacity_floor: f32,
     residual: u32,
+    coherence_power: f32,
+}
+
+/// One launch's settings of `L_dn` (the trainer applies the schedule to `lambda`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthNormalTerm {
+    pub lambda: f32,
+    pub estimate: DepthEstimate,
+    pub residual: DepthNormalResidual,
+    /// The coherence gate's exponent `p` (0: no gate).
+    pub coherence_power: f32,
 }
 
 /// The depth-normal consistency kernel and its per-patch losses.
@@ -109,7 +128,6 @@ impl DepthNormal {
 
     /// Records `L_dn` over `n_patches` patches of `rays` (rendered from `geometry`; `pixel`
     /// holds each ray's `(e, _)`), adding `lambda dL/d RayOutput` into `d_rays`.
-    #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
         enc: &mut Encoder,
@@ -118,19 +136,18 @@ impl DepthNormal {
         pixel: &GpuBuffer<[f32; 2]>,
         d_rays: &GpuBuffer<RayOutput>,
         n_patches: u32,
-        lambda: f32,
-        estimate: DepthEstimate,
-        residual: DepthNormalResidual,
+        term: &DepthNormalTerm,
     ) {
         let n_rays = 4 * n_patches as usize;
         assert!(rays.len() >= n_rays && geometry.len() >= n_rays && pixel.len() >= n_rays && d_rays.len() >= n_rays);
         assert!(self.patch_loss.len() >= n_patches as usize, "depth-normal buffers for {} patches", self.patch_loss.len());
         let params = enc.params(&Params {
             n_patches,
-            given_termination: (estimate == DepthEstimate::GivenTermination) as u32,
-            lambda,
+            given_termination: (term.estimate == DepthEstimate::GivenTermination) as u32,
+            lambda: term.lambda,
             opacity_floor: OPACITY_FLOOR,
-            residual: residual.code(),
+            residual: term.residual.code(),
+            coherence_power: term.coherence_power,
         });
         enc.dispatch_threads(
             &self.kernel,
@@ -194,8 +211,23 @@ pub mod reference {
         Some(if c.dot(d_sum) > 0.0 { -c / len } else { c / len })
     }
 
-    /// `L_dn` of `rays` (a multiple of 4) and its gradients per ray.
-    pub fn loss(rays: &[PatchRay], estimate: DepthEstimate, residual: DepthNormalResidual) -> (f64, Vec<RayGrad>) {
+    /// The coherence gate of each patch (1 with `power = 0`).
+    pub fn coherence_gates(rays: &[PatchRay], power: f64) -> Vec<f64> {
+        rays.chunks(4)
+            .map(|patch| {
+                if power <= 0.0 {
+                    return 1.0;
+                }
+                let c: f64 = patch.iter().map(|r| (r.normal.length() / r.opacity.max(OPACITY_FLOOR as f64)).min(1.0)).sum();
+                (c / 4.0).powf(power)
+            })
+            .collect()
+    }
+
+    /// `L_dn` of `rays` (a multiple of 4) and its gradients per ray, each patch scaled
+    /// by its gate in `gates` (constants: the backward does not differentiate them).
+    pub fn loss(rays: &[PatchRay], estimate: DepthEstimate, residual: DepthNormalResidual, gates: &[f64]) -> (f64, Vec<RayGrad>) {
+        assert_eq!(gates.len() * 4, rays.len());
         assert_eq!(rays.len() % 4, 0);
         let m = (rays.len() / 4) as f64;
         let mut total = 0.0;
@@ -217,7 +249,7 @@ pub mod reference {
             let d_sum: DVec3 = patch.iter().map(|r| r.dir).sum();
             let s = if c_hat.dot(d_sum) > 0.0 { -1.0 } else { 1.0 };
             let n_d = s * c_hat;
-            let k = e / (4.0 * m);
+            let k = gates[pi] * e / (4.0 * m);
             let n_sum: DVec3 = patch.iter().map(|r| r.normal).sum();
             let base: f64 = patch
                 .iter()
@@ -249,10 +281,15 @@ pub mod reference {
 mod tests {
     use glam::DVec3;
 
-    use super::reference::{PatchRay, depth_normal, loss};
+    use super::reference::{PatchRay, coherence_gates, depth_normal};
     use super::*;
     use crate::gpu::test_gpu;
     use crate::rng::SplitMix64;
+
+    /// The reference without a gate.
+    fn loss(rays: &[PatchRay], est: DepthEstimate, res: DepthNormalResidual) -> (f64, Vec<super::reference::RayGrad>) {
+        super::reference::loss(rays, est, res, &vec![1.0; rays.len() / 4])
+    }
 
     const ESTIMATES: [DepthEstimate; 2] = [DepthEstimate::Expected, DepthEstimate::GivenTermination];
     const RESIDUALS: [DepthNormalResidual; 3] =
@@ -319,9 +356,22 @@ mod tests {
     }
 
     #[test]
+    fn the_coherence_gate_is_one_on_a_surface_and_small_in_fog() {
+        let surface: Vec<PatchRay> = (0..4).map(|_| PatchRay { opacity: 0.8, normal: DVec3::new(0.0, 0.6, 0.8) * 0.8, ..Default::default() }).collect();
+        assert!((coherence_gates(&surface, 2.0)[0] - 1.0).abs() < 1e-12);
+        // Fog: opacity 1, the samples' normals cancel down to a tenth.
+        let fog: Vec<PatchRay> = (0..4).map(|_| PatchRay { opacity: 1.0, normal: DVec3::new(0.1, 0.0, 0.0), ..Default::default() }).collect();
+        assert!((coherence_gates(&fog, 2.0)[0] - 0.01).abs() < 1e-12);
+        assert_eq!(coherence_gates(&fog, 0.0)[0], 1.0, "power 0: no gate");
+    }
+
+    #[test]
     fn reference_gradients_match_finite_differences() {
         let rays = random_patches(23, 5);
-        for (est, res) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))) {
+        for ((est, res), power) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))).zip([0.0, 2.0].into_iter().cycle()) {
+            // The gate is a constant of the backward: frozen at the point differentiated.
+            let gates = coherence_gates(&rays, power);
+            let loss = |r: &[PatchRay], est, res| super::reference::loss(r, est, res, &gates);
             let (_, grads) = loss(&rays, est, res);
             let mut checked = 0;
             for i in 0..rays.len() {
@@ -376,13 +426,14 @@ mod tests {
         let outs_buf = GpuBuffer::from_slice(&gpu, "rays", &outs).unwrap();
         let geometry_buf = GpuBuffer::from_slice(&gpu, "geometry", &geometry).unwrap();
         let pixel_buf = GpuBuffer::from_slice(&gpu, "pixel", &pixel).unwrap();
-        for (est, res) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))) {
+        for ((est, res), power) in ESTIMATES.into_iter().flat_map(|e| RESIDUALS.map(|r| (e, r))).zip([0.0f32, 2.0].into_iter().cycle()) {
             // Pre-filled gradients: the kernel adds.
             let prior: Vec<RayOutput> = (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, normal: [i as f32 * 0.01, 0.0, -1.0], opacity: 0.125 }).collect();
             let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
             let lambda = 0.7;
             let mut enc = gpu.encoder();
-            dn.record(&mut enc, &outs_buf, &geometry_buf, &pixel_buf, &d, n_patches, lambda, est, res);
+            let term = DepthNormalTerm { lambda, estimate: est, residual: res, coherence_power: power };
+            dn.record(&mut enc, &outs_buf, &geometry_buf, &pixel_buf, &d, n_patches, &term);
             enc.submit();
             let got = dn.loss(&gpu, n_patches).unwrap() as f64;
             // The reference on the f32-rounded inputs the kernel saw.
@@ -397,9 +448,13 @@ mod tests {
                     ..*r
                 })
                 .collect();
-            let (want, grads) = loss(&seen, est, res);
+            let gates = coherence_gates(&seen, power as f64);
+            if power > 0.0 {
+                assert!(gates.iter().any(|&g| g < 0.8) && gates.iter().any(|&g| g > 0.99), "gates exercised: {gates:?}");
+            }
+            let (want, grads) = super::reference::loss(&seen, est, res, &gates);
             assert!(want > 0.1, "the random patches are inconsistent: {want}");
-            assert!((got - want).abs() <= 1e-5 * want, "{est:?} {res:?}: L_dn {got} vs {want}");
+            assert!((got - want).abs() <= 1e-5 * want, "{est:?} {res:?} gate^{power}: L_dn {got} vs {want}");
             let d = d.read(&gpu).unwrap();
             let scale = grads.iter().map(|g| g.depth.abs()).fold(0.0, f64::max);
             for (i, (g, p)) in grads.iter().zip(&prior).enumerate() {
@@ -432,6 +487,6 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor, residual]);
+        crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor, residual, coherence_power]);
     }
 }

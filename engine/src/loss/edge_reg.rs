@@ -158,6 +158,8 @@ pub struct RegConfig {
     /// Its per-ray residual: `dot` (`1 - <n, n_d>`, 2DGS) or `direction`
     /// (`|n| - <n, n_d>`, no reward for opacity; [`super::depth_normal`]).
     pub depth_normal_residual: DepthNormalResidual,
+    /// Exponent of `L_dn`'s coherence gate (0: none; [`super::depth_normal`]).
+    pub depth_normal_coherence: f32,
 }
 
 impl Default for RegConfig {
@@ -177,6 +179,7 @@ impl Default for RegConfig {
             lambda_color: 1.0,
             lambda_depth_normal: 0.0,
             depth_normal_residual: DepthNormalResidual::Dot,
+            depth_normal_coherence: 0.0,
         }
     }
 }
@@ -218,6 +221,7 @@ impl RegConfig {
             depth_estimate: self.depth_estimate,
             lambda_depth_normal: if self.normal { ramp * self.lambda_depth_normal } else { 0.0 },
             depth_normal_residual: self.depth_normal_residual,
+            depth_normal_coherence: self.depth_normal_coherence,
         };
         (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0).then_some(w)
     }
@@ -228,6 +232,7 @@ impl RegConfig {
             ("lambda_normal", self.lambda_normal),
             ("lambda_color", Some(self.lambda_color)),
             ("lambda_depth_normal", Some(self.lambda_depth_normal)),
+            ("depth_normal_coherence", Some(self.depth_normal_coherence)),
             ("tau_depth", Some(self.tau_depth)),
             ("tau_normal", Some(self.tau_normal)),
         ];
@@ -258,6 +263,7 @@ pub struct EdgeRegWeights {
     /// The depth-normal consistency's weight (0: off), on the same patches.
     pub lambda_depth_normal: f32,
     pub depth_normal_residual: DepthNormalResidual,
+    pub depth_normal_coherence: f32,
 }
 
 #[repr(C)]

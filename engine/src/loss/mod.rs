@@ -13,7 +13,7 @@ pub mod depth_tv;
 pub mod edge_reg;
 pub mod photometric;
 
-pub use depth_normal::{DepthNormal, DepthNormalResidual};
+pub use depth_normal::{DepthNormal, DepthNormalResidual, DepthNormalTerm};
 pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;

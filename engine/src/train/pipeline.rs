@@ -37,7 +37,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{DepthNormal, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::loss::{DepthNormal, DepthNormalTerm, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -337,7 +337,13 @@ impl Pipeline {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
             if w.lambda_depth_normal > 0.0 {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
-                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, w.lambda_depth_normal, w.depth_estimate, w.depth_normal_residual);
+                let term = DepthNormalTerm {
+                    lambda: w.lambda_depth_normal,
+                    estimate: w.depth_estimate,
+                    residual: w.depth_normal_residual,
+                    coherence_power: w.depth_normal_coherence,
+                };
+                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
             }
         }
         if let Some(lambda) = plan.tv {
