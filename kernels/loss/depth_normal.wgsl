@@ -31,11 +31,16 @@ struct Params {
     given_termination: u32,
     lambda: f32,
     opacity_floor: f32,
-    // b_i of the residual: 0 "dot" (1), 1 "direction" (|n_i|), 2 "per_sample" (opacity_i).
+    // b_i of the residual: RESIDUAL_DOT (1), RESIDUAL_DIRECTION (|n_i|) or
+    // RESIDUAL_PER_SAMPLE (opacity_i); DepthNormalResidual::code in depth_normal.rs.
     residual: u32,
     // Exponent of the coherence gate (0: none).
     coherence_power: f32,
 }
+
+const RESIDUAL_DOT: u32 = 0u;
+const RESIDUAL_DIRECTION: u32 = 1u;
+const RESIDUAL_PER_SAMPLE: u32 = 2u;
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<RayOutput>;
@@ -63,6 +68,7 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     var dt_ddepth: array<f32, 4>;
     var dt_dopacity: array<f32, 4>;
     var normal: array<vec3<f32>, 4>;
+    var n_len: array<f32, 4>;
     var n_sum = vec3<f32>(0.0);
     var b_sum = 0.0;
     var coherence = 0.0;
@@ -82,9 +88,14 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         dir[i] = ray.dir;
         p[i] = ray.origin + t * ray.dir;
         normal[i] = out.normal;
+        n_len[i] = length(out.normal);
         n_sum += out.normal;
-        coherence += min(1.0, length(out.normal) / max(out.opacity, params.opacity_floor));
-        b_sum += select(select(1.0, length(out.normal), params.residual == 1u), out.opacity, params.residual == 2u);
+        coherence += min(1.0, n_len[i] / max(out.opacity, params.opacity_floor));
+        switch params.residual {
+            case RESIDUAL_DIRECTION: { b_sum += n_len[i]; }
+            case RESIDUAL_PER_SAMPLE: { b_sum += out.opacity; }
+            default: { b_sum += 1.0; }
+        }
         d_sum += ray.dir;
     }
     let a = p[1] - p[0] + p[3] - p[2];
@@ -120,11 +131,11 @@ fn depth_normal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         d.depth += lambda * g_t * dt_ddepth[i];
         d.opacity += lambda * g_t * dt_dopacity[i];
         var g_n = -n_d;
-        if (params.residual == 1u) {
-            g_n += normal[i] / max(length(normal[i]), 1e-12);
+        if (params.residual == RESIDUAL_DIRECTION) {
+            g_n += normal[i] / max(n_len[i], 1e-12);
         }
         d.normal += (lambda * k) * g_n;
-        if (params.residual == 2u) {
+        if (params.residual == RESIDUAL_PER_SAMPLE) {
             d.opacity += lambda * k;
         }
         d_rays[base + i] = d;

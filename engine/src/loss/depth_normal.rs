@@ -488,5 +488,12 @@ mod wgsl_mirrors {
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
         crate::assert_wgsl_mirror!(Params, "loss/depth_normal.wgsl", "Params", [n_patches, given_termination, lambda, opacity_floor, residual, coherence_power]);
+        for (res, name) in [
+            (DepthNormalResidual::Dot, "RESIDUAL_DOT"),
+            (DepthNormalResidual::Direction, "RESIDUAL_DIRECTION"),
+            (DepthNormalResidual::PerSample, "RESIDUAL_PER_SAMPLE"),
+        ] {
+            crate::gpu::kernel::tests::check_wgsl_u32_const("loss/depth_normal.wgsl", name, res.code()).unwrap_or_else(|e| panic!("{e}"));
+        }
     }
 }

@@ -68,7 +68,7 @@
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
-use super::depth_normal::DepthNormalResidual;
+use super::depth_normal::{DepthNormalResidual, DepthNormalTerm};
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/edge_reg.wgsl",
@@ -155,8 +155,9 @@ pub struct RegConfig {
     /// switches it off with `L_n`, so `--no-depth-reg --no-normal-reg` is no
     /// regularizer with any preset.
     pub lambda_depth_normal: f32,
-    /// Its per-ray residual: `dot` (`1 - <n, n_d>`, 2DGS) or `direction`
-    /// (`|n| - <n, n_d>`, no reward for opacity; [`super::depth_normal`]).
+    /// Its per-ray residual: `dot` (`1 - <n, n_d>`, 2DGS), `direction`
+    /// (`|n| - <n, n_d>`) or `per_sample` (`opacity - <n, n_d>`); the last two do not
+    /// reward opacity ([`super::depth_normal`]).
     pub depth_normal_residual: DepthNormalResidual,
     /// Exponent of `L_dn`'s coherence gate (0: none; [`super::depth_normal`]).
     pub depth_normal_coherence: f32,
@@ -264,6 +265,18 @@ pub struct EdgeRegWeights {
     pub lambda_depth_normal: f32,
     pub depth_normal_residual: DepthNormalResidual,
     pub depth_normal_coherence: f32,
+}
+
+impl EdgeRegWeights {
+    /// The depth-normal consistency's launch settings, `None` when its weight is 0.
+    pub fn depth_normal_term(&self) -> Option<DepthNormalTerm> {
+        (self.lambda_depth_normal > 0.0).then_some(DepthNormalTerm {
+            lambda: self.lambda_depth_normal,
+            estimate: self.depth_estimate,
+            residual: self.depth_normal_residual,
+            coherence_power: self.depth_normal_coherence,
+        })
+    }
 }
 
 #[repr(C)]

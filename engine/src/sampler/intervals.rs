@@ -127,6 +127,12 @@ pub(crate) mod tests {
         pub tie: bool,
     }
 
+    /// Gap below which two intervals touch, and the length below which one is a
+    /// sliver: the kernel's `merge_tolerance`.
+    fn touch_tolerance(t: f32) -> f32 {
+        1e-5 * t.abs().max(1.0)
+    }
+
     /// Gaps closer than this count as equal when choosing which one to close.
     fn gap_tie_tolerance(t: f32) -> f32 {
         1e-4 * t.abs().max(1.0)
@@ -138,7 +144,7 @@ pub(crate) mod tests {
         let mut out: Vec<[f32; 2]> = Vec::new();
         for iv in raw {
             match out.last_mut() {
-                Some(last) if iv[0] <= last[1] + 1e-5 * last[1].abs().max(1.0) => last[1] = last[1].max(iv[1]),
+                Some(last) if iv[0] <= last[1] + touch_tolerance(last[1]) => last[1] = last[1].max(iv[1]),
                 _ => out.push(iv),
             }
         }
@@ -157,7 +163,7 @@ pub(crate) mod tests {
         let h = ray.box_range(b.min.into(), b.max.into());
         let iv = [h[0].max(ray.t_min), h[1].min(ray.t_max)];
         // Slivers shorter than the touching tolerance are dropped, as in the kernel.
-        (iv[1] - iv[0] > 1e-5 * iv[1].abs().max(1.0)).then_some(iv)
+        (iv[1] - iv[0] > touch_tolerance(iv[1])).then_some(iv)
     }
 
     /// CPU traversal of the same obvhs BVH with obvhs's own any-hit traversal.

@@ -37,7 +37,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{DepthNormal, DepthNormalTerm, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::loss::{DepthNormal, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -335,14 +335,8 @@ impl Pipeline {
         self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
-            if w.lambda_depth_normal > 0.0 {
+            if let Some(term) = w.depth_normal_term() {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
-                let term = DepthNormalTerm {
-                    lambda: w.lambda_depth_normal,
-                    estimate: w.depth_estimate,
-                    residual: w.depth_normal_residual,
-                    coherence_power: w.depth_normal_coherence,
-                };
                 self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
             }
         }
@@ -365,9 +359,9 @@ impl Pipeline {
         let rays_dropped = if cut { self.drop_truncated.dropped(gpu)? } else { 0 };
         let color = self.photometric.mse(gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
         let reg = if plan.reg.is_some() { self.edge_reg.losses(gpu, n / 4)? } else { EdgeRegLosses::default() };
-        let depth_normal = match plan.reg {
-            Some(w) if w.lambda_depth_normal > 0.0 => self.depth_normal.loss(gpu, n / 4)?,
-            _ => 0.0,
+        let depth_normal = match plan.reg.and_then(|w| w.depth_normal_term()) {
+            Some(_) => self.depth_normal.loss(gpu, n / 4)?,
+            None => 0.0,
         };
         let tv = if plan.tv.is_some() { self.depth_tv.loss(gpu, self.n_tv)? } else { 0.0 };
         let priors = *self.renderer.priors();
