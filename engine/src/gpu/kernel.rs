@@ -17,7 +17,11 @@
 //!
 //! A kernel's owner (a thin Rust wrapper in the room that uses it) declares a
 //! [`KernelSpec`]: the file, the entry point and the bind layout of group 0, in
-//! binding order. Nothing else binds that kernel.
+//! binding order. Nothing else binds that kernel. The spec is checked against the WGSL
+//! by naga reflection before the pipeline is built ([`KernelSpec::check_bindings`]: the
+//! entry point, each binding's slot and kind), and the Rust mirrors of WGSL structs
+//! against naga's layout of them in the owners' tests (`assert_wgsl_mirror!`), so a
+//! layout edited on one side only fails with the kernel's name.
 //!
 //! # Uniform buffers
 //! A dispatch's parameters live in a small read-only storage buffer
@@ -216,6 +220,13 @@ pub fn validate(name: &str, float_atomics: bool) -> Result<naga::Module, GpuErro
 
 /// [`validate`] of kernel file `name` completed by `generated` (module doc).
 pub fn validate_with(name: &str, float_atomics: bool, generated: &str) -> Result<naga::Module, GpuError> {
+    validate_reflected(name, float_atomics, generated).map(|(module, _)| module)
+}
+
+/// [`validate_with`], also returning naga's analysis of the module (which globals each
+/// entry point uses: what [`KernelSpec::check_bindings`] reflects on).
+fn validate_reflected(name: &str, float_atomics: bool, generated: &str)
+-> Result<(naga::Module, naga::valid::ModuleInfo), GpuError> {
     let src = preprocess_with(name, float_atomics, generated)?;
     let module = naga::front::wgsl::parse_str(&src)
         .map_err(|e| GpuError::Shader { kernel: name.to_string(), message: e.emit_to_string_with_path(&src, name) })?;
@@ -224,10 +235,10 @@ pub fn validate_with(name: &str, float_atomics: bool, generated: &str) -> Result
     } else {
         naga::valid::Capabilities::empty()
     };
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+    let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
         .validate(&module)
         .map_err(|e| GpuError::Shader { kernel: name.to_string(), message: e.emit_to_string_with_path(&src, name) })?;
-    Ok(module)
+    Ok((module, info))
 }
 
 impl KernelSpec {
@@ -251,12 +262,79 @@ impl KernelSpec {
         }
         Ok(())
     }
+
+    /// The bind layout against the WGSL, by naga reflection of the validated `module`
+    /// (`info`: naga's analysis of it). The entry point must exist; every buffer it uses
+    /// must sit in group 0 at a binding this spec lists, with the same kind
+    /// (`var<storage, read>` for [`Binding::ReadOnly`] and [`Binding::Params`],
+    /// `var<storage, read_write>`, `var<uniform>`); and every binding listed must be
+    /// declared by the file. Globals this entry point does not use are not held to the
+    /// spec's kind: files with several entry points alias a binding with a different
+    /// global per entry point (`optim/grad_norm.wgsl`'s `params` and `stats_mark`). Run before every
+    /// pipeline is built, so a layout edited on one side only is an error naming the
+    /// kernel and the binding, not a wgpu validation panic or a buffer bound in the
+    /// wrong slot.
+    pub fn check_bindings(&self, module: &naga::Module, info: &naga::valid::ModuleInfo) -> Result<(), GpuError> {
+        let err = |message: String| GpuError::BindLayout { kernel: format!("{}:{}", self.file, self.entry), message };
+        let entry = module
+            .entry_points
+            .iter()
+            .position(|ep| ep.name == self.entry)
+            .ok_or_else(|| err(format!("the file has no entry point {:?}", self.entry)))?;
+        let used = info.get_entry_point(entry);
+        let declared_kind = |g: &naga::GlobalVariable| match g.space {
+            naga::AddressSpace::Storage { access } if access.contains(naga::StorageAccess::STORE) => Some("read_write"),
+            naga::AddressSpace::Storage { .. } => Some("read"),
+            naga::AddressSpace::Uniform => Some("uniform"),
+            _ => None,
+        };
+        let spec_kind = |b: &Binding| match b {
+            Binding::ReadOnly | Binding::Params => "read",
+            Binding::ReadWrite => "read_write",
+            Binding::Uniform => "uniform",
+        };
+        let mut declared = vec![None; self.bindings.len()];
+        for (handle, g) in module.global_variables.iter() {
+            let (Some(rb), Some(kind)) = (&g.binding, declared_kind(g)) else { continue };
+            let name = g.name.as_deref().unwrap_or("?");
+            let is_used = !used[handle].is_empty();
+            if rb.group != 0 {
+                if is_used {
+                    return Err(err(format!("`{name}` is in group {}; kernels bind group 0 only", rb.group)));
+                }
+                continue;
+            }
+            match self.bindings.get(rb.binding as usize) {
+                Some(b) if spec_kind(b) == kind || !is_used => declared[rb.binding as usize] = Some(kind),
+                Some(b) => {
+                    return Err(err(format!(
+                        "binding {} (`{name}`) is var<{kind}> in the WGSL, {b:?} (var<{}>) in the Rust spec",
+                        rb.binding,
+                        spec_kind(b)
+                    )))
+                }
+                None if is_used => {
+                    return Err(err(format!(
+                        "the entry point uses binding {} (`{name}`), the Rust spec lists {} bindings",
+                        rb.binding,
+                        self.bindings.len()
+                    )))
+                }
+                None => {}
+            }
+        }
+        if let Some(i) = declared.iter().position(Option::is_none) {
+            return Err(err(format!("the Rust spec lists binding {i} ({:?}), the WGSL declares none there", self.bindings[i])));
+        }
+        Ok(())
+    }
 }
 
 impl Kernel {
     pub(super) fn build(gpu: &Gpu, spec: &KernelSpec, generated: &str) -> Result<Kernel, GpuError> {
         // Validate first: naga's messages name the file and line.
-        validate_with(spec.file, gpu.float_atomics(), generated)?;
+        let (module, info) = validate_reflected(spec.file, gpu.float_atomics(), generated)?;
+        spec.check_bindings(&module, &info)?;
         spec.check_limits(gpu.limits())?;
         let src = preprocess_with(spec.file, gpu.float_atomics(), generated)?;
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -600,6 +678,36 @@ pub(crate) mod tests {
         }
         let no_uniform = wgpu::Limits { max_uniform_buffers_per_shader_stage: 0, ..limits };
         assert!(matches!(spec.check_limits(&no_uniform), Err(GpuError::TooManyBindings { kind: "uniform", .. })));
+    }
+
+    /// The reflection check of [`KernelSpec::check_bindings`] on every kind of mismatch
+    /// (`gpu/roundtrip.wgsl:scatter_add` declares params, read, read_write, read_write).
+    #[test]
+    fn bind_layouts_are_checked_against_the_wgsl() {
+        let (module, info) = validate_reflected("gpu/roundtrip.wgsl", true, "").unwrap();
+        let check = |entry: &'static str, bindings: &'static [Binding]| {
+            KernelSpec { file: "gpu/roundtrip.wgsl", entry, bindings }.check_bindings(&module, &info)
+        };
+        use Binding::*;
+        check("scatter_add", &[Params, ReadOnly, ReadWrite, ReadWrite]).unwrap();
+        // Params and ReadOnly are both var<storage, read>: reflection cannot tell them apart.
+        check("scatter_add", &[ReadOnly, Params, ReadWrite, ReadWrite]).unwrap();
+        let message = |r: Result<(), GpuError>| match r {
+            Err(GpuError::BindLayout { kernel, message }) => {
+                assert_eq!(kernel.split(':').next(), Some("gpu/roundtrip.wgsl"));
+                message
+            }
+            other => panic!("expected a bind layout error, got {other:?}"),
+        };
+        let wrong_kind = message(check("scatter_add", &[Params, ReadWrite, ReadWrite, ReadWrite]));
+        assert!(wrong_kind.contains("binding 1 (`values`) is var<read>"), "{wrong_kind}");
+        let short = message(check("scatter_add", &[Params, ReadOnly, ReadWrite]));
+        assert!(short.contains("uses binding 3 (`sums`)"), "{short}");
+        let long = message(check("scatter_add", &[Params, ReadOnly, ReadWrite, ReadWrite, ReadOnly]));
+        assert!(long.contains("lists binding 4"), "{long}");
+        let uniform = message(check("scatter_add", &[Uniform, ReadOnly, ReadWrite, ReadWrite]));
+        assert!(uniform.contains("binding 0 (`params`)"), "{uniform}");
+        assert!(message(check("no_such_entry", &[Params])).contains("no entry point"));
     }
 
     #[test]

@@ -53,6 +53,8 @@ pub enum GpuError {
          use an adapter with a higher limit (`edgenerf info --check-gpu` shows the one in use; --adapter picks another)"
     )]
     TooManyBindings { kernel: String, kind: &'static str, count: u32, limit: u32 },
+    #[error("kernel {kernel}: its Rust bind layout does not match the WGSL: {message}")]
+    BindLayout { kernel: String, message: String },
     #[error("no kernel named {0:?} under kernels/")]
     UnknownKernel(String),
     #[error("buffer {label:?} needs {bytes} bytes, above this device's storage binding limit of {limit} bytes")]
