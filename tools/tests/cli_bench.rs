@@ -124,8 +124,13 @@ fn bench_quick_variant_and_unknown_suites() {
 #[test]
 fn shipped_suites_parse() {
     // --report-only on an empty directory expands every run without training any.
-    for suite in ["geometry", "paper-ablation", "backends"] {
-        for quick in [false, true] {
+    for (suite, quick_variants) in [
+        ("geometry", &[false, true][..]),
+        ("paper-ablation", &[false, true]),
+        ("backends", &[false, true]),
+        ("dense-walls", &[false]),
+    ] {
+        for &quick in quick_variants {
             let dir = tempfile::tempdir().unwrap();
             let mut args = vec!["bench", suite, "--report-only", "--out", dir.path().to_str().unwrap()];
             if quick {
@@ -139,6 +144,9 @@ fn shipped_suites_parse() {
             assert!(!rows.is_empty(), "{suite}");
             if suite == "geometry" {
                 assert_eq!(rows.len(), if quick { 14 } else { 21 }, "7 scenes x configs");
+            }
+            if suite == "dense-walls" {
+                assert_eq!(rows.len(), 7 * 3 + 3 * 5, "3 configs on every scene, 5 on the forward-facing ones");
             }
         }
     }
