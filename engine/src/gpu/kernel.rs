@@ -80,6 +80,27 @@ pub enum Binding {
     Uniform,
 }
 
+impl Binding {
+    /// The buffer type of the layout entry built for this binding (what
+    /// [`KernelSpec::check_bindings`] compares the WGSL declaration with).
+    pub fn buffer_type(self) -> wgpu::BufferBindingType {
+        match self {
+            Binding::ReadOnly | Binding::Params => wgpu::BufferBindingType::Storage { read_only: true },
+            Binding::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+            Binding::Uniform => wgpu::BufferBindingType::Uniform,
+        }
+    }
+}
+
+/// How WGSL declares a buffer of type `ty` (error messages of the binding check).
+fn wgsl_declaration(ty: wgpu::BufferBindingType) -> &'static str {
+    match ty {
+        wgpu::BufferBindingType::Storage { read_only: true } => "var<storage, read>",
+        wgpu::BufferBindingType::Storage { read_only: false } => "var<storage, read_write>",
+        wgpu::BufferBindingType::Uniform => "var<uniform>",
+    }
+}
+
 /// Identifies a kernel and declares its bind layout.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct KernelSpec {
@@ -282,20 +303,16 @@ impl KernelSpec {
             .position(|ep| ep.name == self.entry)
             .ok_or_else(|| err(format!("the file has no entry point {:?}", self.entry)))?;
         let used = info.get_entry_point(entry);
-        let declared_kind = |g: &naga::GlobalVariable| match g.space {
-            naga::AddressSpace::Storage { access } if access.contains(naga::StorageAccess::STORE) => Some("read_write"),
-            naga::AddressSpace::Storage { .. } => Some("read"),
-            naga::AddressSpace::Uniform => Some("uniform"),
+        let declared_type = |g: &naga::GlobalVariable| match g.space {
+            naga::AddressSpace::Storage { access } => {
+                Some(wgpu::BufferBindingType::Storage { read_only: !access.contains(naga::StorageAccess::STORE) })
+            }
+            naga::AddressSpace::Uniform => Some(wgpu::BufferBindingType::Uniform),
             _ => None,
         };
-        let spec_kind = |b: &Binding| match b {
-            Binding::ReadOnly | Binding::Params => "read",
-            Binding::ReadWrite => "read_write",
-            Binding::Uniform => "uniform",
-        };
-        let mut declared = vec![None; self.bindings.len()];
+        let mut declared = vec![false; self.bindings.len()];
         for (handle, g) in module.global_variables.iter() {
-            let (Some(rb), Some(kind)) = (&g.binding, declared_kind(g)) else { continue };
+            let (Some(rb), Some(ty)) = (&g.binding, declared_type(g)) else { continue };
             let name = g.name.as_deref().unwrap_or("?");
             let is_used = !used[handle].is_empty();
             if rb.group != 0 {
@@ -305,12 +322,13 @@ impl KernelSpec {
                 continue;
             }
             match self.bindings.get(rb.binding as usize) {
-                Some(b) if spec_kind(b) == kind || !is_used => declared[rb.binding as usize] = Some(kind),
+                Some(b) if b.buffer_type() == ty || !is_used => declared[rb.binding as usize] = true,
                 Some(b) => {
                     return Err(err(format!(
-                        "binding {} (`{name}`) is var<{kind}> in the WGSL, {b:?} (var<{}>) in the Rust spec",
+                        "binding {} (`{name}`) is {} in the WGSL, {b:?} ({}) in the Rust spec",
                         rb.binding,
-                        spec_kind(b)
+                        wgsl_declaration(ty),
+                        wgsl_declaration(b.buffer_type())
                     )))
                 }
                 None if is_used => {
@@ -323,7 +341,7 @@ impl KernelSpec {
                 None => {}
             }
         }
-        if let Some(i) = declared.iter().position(Option::is_none) {
+        if let Some(i) = declared.iter().position(|&d| !d) {
             return Err(err(format!("the Rust spec lists binding {i} ({:?}), the WGSL declares none there", self.bindings[i])));
         }
         Ok(())
@@ -349,11 +367,7 @@ impl Kernel {
                 binding: i as u32,
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Buffer {
-                    ty: match b {
-                        Binding::ReadOnly | Binding::Params => wgpu::BufferBindingType::Storage { read_only: true },
-                        Binding::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
-                        Binding::Uniform => wgpu::BufferBindingType::Uniform,
-                    },
+                    ty: b.buffer_type(),
                     has_dynamic_offset: false,
                     min_binding_size: None,
                 },
@@ -700,7 +714,7 @@ pub(crate) mod tests {
             other => panic!("expected a bind layout error, got {other:?}"),
         };
         let wrong_kind = message(check("scatter_add", &[Params, ReadWrite, ReadWrite, ReadWrite]));
-        assert!(wrong_kind.contains("binding 1 (`values`) is var<read>"), "{wrong_kind}");
+        assert!(wrong_kind.contains("binding 1 (`values`) is var<storage, read> in the WGSL, ReadWrite (var<storage, read_write>)"), "{wrong_kind}");
         let short = message(check("scatter_add", &[Params, ReadOnly, ReadWrite]));
         assert!(short.contains("uses binding 3 (`sums`)"), "{short}");
         let long = message(check("scatter_add", &[Params, ReadOnly, ReadWrite, ReadWrite, ReadOnly]));
