@@ -241,13 +241,14 @@ pub fn validate(name: &str, float_atomics: bool) -> Result<naga::Module, GpuErro
 
 /// [`validate`] of kernel file `name` completed by `generated` (module doc).
 pub fn validate_with(name: &str, float_atomics: bool, generated: &str) -> Result<naga::Module, GpuError> {
-    validate_reflected(name, float_atomics, generated).map(|(module, _)| module)
+    validate_reflected(name, float_atomics, generated).map(|(_, module, _)| module)
 }
 
-/// [`validate_with`], also returning naga's analysis of the module (which globals each
-/// entry point uses: what [`KernelSpec::check_bindings`] reflects on).
+/// [`validate_with`], also returning the preprocessed source (what the pipeline
+/// compiles) and naga's analysis of the module (which globals each entry point uses:
+/// what [`KernelSpec::check_bindings`] reflects on).
 fn validate_reflected(name: &str, float_atomics: bool, generated: &str)
--> Result<(naga::Module, naga::valid::ModuleInfo), GpuError> {
+-> Result<(String, naga::Module, naga::valid::ModuleInfo), GpuError> {
     let src = preprocess_with(name, float_atomics, generated)?;
     let module = naga::front::wgsl::parse_str(&src)
         .map_err(|e| GpuError::Shader { kernel: name.to_string(), message: e.emit_to_string_with_path(&src, name) })?;
@@ -259,7 +260,7 @@ fn validate_reflected(name: &str, float_atomics: bool, generated: &str)
     let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
         .validate(&module)
         .map_err(|e| GpuError::Shader { kernel: name.to_string(), message: e.emit_to_string_with_path(&src, name) })?;
-    Ok((module, info))
+    Ok((src, module, info))
 }
 
 impl KernelSpec {
@@ -351,10 +352,9 @@ impl KernelSpec {
 impl Kernel {
     pub(super) fn build(gpu: &Gpu, spec: &KernelSpec, generated: &str) -> Result<Kernel, GpuError> {
         // Validate first: naga's messages name the file and line.
-        let (module, info) = validate_reflected(spec.file, gpu.float_atomics(), generated)?;
+        let (src, module, info) = validate_reflected(spec.file, gpu.float_atomics(), generated)?;
         spec.check_bindings(&module, &info)?;
         spec.check_limits(gpu.limits())?;
-        let src = preprocess_with(spec.file, gpu.float_atomics(), generated)?;
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(spec.file),
             source: wgpu::ShaderSource::Wgsl(Cow::Owned(src)),
@@ -698,7 +698,7 @@ pub(crate) mod tests {
     /// (`gpu/roundtrip.wgsl:scatter_add` declares params, read, read_write, read_write).
     #[test]
     fn bind_layouts_are_checked_against_the_wgsl() {
-        let (module, info) = validate_reflected("gpu/roundtrip.wgsl", true, "").unwrap();
+        let (_, module, info) = validate_reflected("gpu/roundtrip.wgsl", true, "").unwrap();
         let check = |entry: &'static str, bindings: &'static [Binding]| {
             KernelSpec { file: "gpu/roundtrip.wgsl", entry, bindings }.check_bindings(&module, &info)
         };
