@@ -178,6 +178,36 @@ fn exr_error(path: &Path, message: impl std::fmt::Display) -> DataError {
     }
 }
 
+/// The most decoded sample memory an EXR may ask for, as for the `image` crate's default
+/// limit on PNG/JPEG decoding: 512 MiB (a 8192 x 8192 four-channel `f32` map needs 1 GiB
+/// and is refused; a 4096 x 4096 one fits with room).
+const EXR_MAX_DECODED_BYTES: u128 = 512 << 20;
+
+/// Refuses, from the header alone, an EXR whose layers would decode to more than
+/// [`EXR_MAX_DECODED_BYTES`]: the `exr` crate allocates what a (possibly corrupt) data
+/// window declares before reading a pixel, and a failed allocation aborts the process
+/// instead of returning an error.
+fn check_exr_size(path: &Path) -> Result<(), DataError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(path, e))?;
+    for header in &meta.headers {
+        let (w, h) = (header.layer_size.width() as u128, header.layer_size.height() as u128);
+        let channels = header.channels.list.len() as u128;
+        // Every sample is converted to `f32`, whatever its stored type.
+        let bytes = w * h * channels * 4;
+        if bytes > EXR_MAX_DECODED_BYTES {
+            return Err(exr_error(
+                path,
+                format!(
+                    "its header declares a {w}x{h} layer with {channels} channel(s), {} MiB decoded, over the {} MiB limit; the file is corrupt or not a per-view map (write one with save_depth_exr / save_normal_exr)",
+                    bytes >> 20,
+                    EXR_MAX_DECODED_BYTES >> 20
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Reads the named channels (first name found in each group of alternatives) of the
 /// first layer of an EXR file, as `f32`, row-major.
 fn read_exr_channels(
@@ -190,6 +220,7 @@ fn read_exr_channels(
             what: "EXR file",
         });
     }
+    check_exr_size(path)?;
     let image = exrp::read_first_flat_layer_from_file(path).map_err(|e| exr_error(path, e))?;
     let layer = &image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
@@ -454,6 +485,20 @@ mod tests {
         // A depth file is not a normal file: the error names the file and the channels.
         let msg = load_normal_exr(&dp).unwrap_err().to_string();
         assert!(msg.contains("d.exr") && msg.contains("R or X"), "{msg}");
+
+        // A corrupt data window that declares a huge layer is refused from the header,
+        // before the `exr` crate tries to allocate it (it aborted the process on 562 TB).
+        let bytes = std::fs::read(&dp).unwrap();
+        let at = bytes.windows(11).position(|w| w == b"dataWindow\0").unwrap();
+        // name, "box2i\0", size (4 bytes), then xMin, yMin, xMax, yMax as i32: the
+        // maxima set to 2^20, a 2^20 x 2^20 layer (4 TiB as f32).
+        let x_max = at + 11 + 6 + 4 + 8;
+        let mut corrupt = bytes.clone();
+        corrupt[x_max..x_max + 8].copy_from_slice(&[0, 0, 0x10, 0, 0, 0, 0x10, 0]);
+        let bad = dir.path().join("huge.exr");
+        std::fs::write(&bad, &corrupt).unwrap();
+        let msg = load_depth_exr(&bad).unwrap_err().to_string();
+        assert!(msg.contains("huge.exr") && msg.contains("MiB limit"), "{msg}");
 
         let mut img = ImageRgb::new(w, h);
         img.set(4, 2, [1.0, 0.5, 0.0]);
