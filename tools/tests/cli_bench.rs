@@ -129,6 +129,7 @@ fn shipped_suites_parse() {
         ("paper-ablation", &[false, true]),
         ("backends", &[false, true]),
         ("dense-walls", &[false]),
+        ("fern-ablation", &[false]),
     ] {
         for &quick in quick_variants {
             let dir = tempfile::tempdir().unwrap();
@@ -147,6 +148,9 @@ fn shipped_suites_parse() {
             }
             if suite == "dense-walls" {
                 assert_eq!(rows.len(), 7 * 3 + 3 * 5, "3 configs on every scene, 5 on the forward-facing ones");
+            }
+            if suite == "fern-ablation" {
+                assert_eq!(rows.len(), 11 * 2, "11 configs x 2 seeds on fern");
             }
         }
     }
