@@ -493,7 +493,7 @@ mod tests {
         // name, "box2i\0", size (4 bytes), then xMin, yMin, xMax, yMax as i32: the
         // maxima set to 2^20, a 2^20 x 2^20 layer (4 TiB as f32).
         let x_max = at + 11 + 6 + 4 + 8;
-        let mut corrupt = bytes.clone();
+        let mut corrupt = bytes;
         corrupt[x_max..x_max + 8].copy_from_slice(&[0, 0, 0x10, 0, 0, 0, 0x10, 0]);
         let bad = dir.path().join("huge.exr");
         std::fs::write(&bad, &corrupt).unwrap();
