@@ -130,6 +130,7 @@ fn shipped_suites_parse() {
         ("backends", &[false, true]),
         ("dense-walls", &[false]),
         ("fern-ablation", &[false]),
+        ("dtu-ablation", &[false]),
     ] {
         for &quick in quick_variants {
             let dir = tempfile::tempdir().unwrap();
@@ -151,6 +152,9 @@ fn shipped_suites_parse() {
             }
             if suite == "fern-ablation" {
                 assert_eq!(rows.len(), 11 * 2, "11 configs x 2 seeds on fern");
+            }
+            if suite == "dtu-ablation" {
+                assert_eq!(rows.len(), 6 * 2, "6 configs x 2 seeds on DTU scan 24");
             }
         }
     }
