@@ -4,6 +4,7 @@
 mod cmd;
 mod output;
 mod plot;
+mod presets;
 mod report;
 mod slurm;
 mod suite;

@@ -367,3 +367,46 @@ fn numeric_flags_are_range_checked_before_any_work() {
         assert!(!run.join("log.csv").exists(), "{flag} {value}: refused before training");
     }
 }
+
+/// Without `--config`, a sparse-view run of the grid takes the shipped preset for its
+/// scene format (the measured configuration, not the paper's unscaled weights) and says
+/// so; `--no-preset` gives the engine defaults, and a dense run is left alone.
+#[test]
+fn a_sparse_run_without_config_uses_the_format_preset() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let scene = scene.to_str().unwrap();
+    let run = |name: &str, extra: &[&str]| {
+        let dir = out.path().join(name);
+        let mut args = vec!["train", scene, "--out", dir.to_str().unwrap(), "--iters", "1", "--no-eval"];
+        args.extend_from_slice(&["--set", "sampler.steps_per_diagonal=48"]);
+        // The preset's grid everywhere: the engine default's larger grid would compile
+        // its own kernels on lavapipe (minutes) for a test of the reg settings only.
+        let field: Vec<String> = ["n_levels=8", "log2_hashmap_size=16", "finest_resolution=256", "hidden_width=32"]
+            .iter()
+            .map(|f| format!("field.{f}"))
+            .collect();
+        for f in &field {
+            args.extend_from_slice(&["--set", f]);
+        }
+        args.extend_from_slice(extra);
+        let o = edgenerf(&args);
+        assert!(o.status.success(), "{name}: {}", text(&o));
+        let config: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("config.json")).unwrap()).unwrap();
+        (text(&o), config)
+    };
+    let preset = edgenerf::train::RunConfig::from_file(&repo().join("tools/configs/sparse-small.toml")).unwrap();
+    let (t, config) = run("preset", &["--views", "3"]);
+    assert!(t.contains("tools/configs/sparse-small.toml"), "{t}");
+    assert_eq!(config["reg"]["lambda_depth"].as_f64().unwrap() as f32, preset.reg.lambda_depth);
+    assert_eq!(config["reg"]["start_step"], serde_json::json!(preset.reg.start_step));
+    let (t, config) = run("defaults", &["--views", "3", "--no-preset"]);
+    assert!(!t.contains("preset tools/configs"), "{t}");
+    let defaults = edgenerf::train::RunConfig::default();
+    assert_eq!(config["reg"]["lambda_depth"].as_f64().unwrap() as f32, defaults.reg.lambda_depth);
+    assert_ne!(defaults.reg.lambda_depth, preset.reg.lambda_depth, "the test must tell the two apart");
+    let (t, config) = run("dense", &[]);
+    assert!(!t.contains("preset tools/configs"), "{t}");
+    assert_eq!(config["reg"]["lambda_depth"].as_f64().unwrap() as f32, defaults.reg.lambda_depth);
+}

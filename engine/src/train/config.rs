@@ -269,10 +269,22 @@ impl RunConfig {
             _ => return Err(bad("config files are TOML (.toml) or JSON (.json) only; name the file after its format".into())),
         };
         let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
+        RunConfig::from_text_for(&text, is_toml, &path.display().to_string(), backend)
+    }
+
+    /// [`RunConfig::from_file_for`] on a config's text (`is_toml`, else JSON); errors
+    /// name `source_name`.
+    pub fn from_text_for(
+        text: &str,
+        is_toml: bool,
+        source_name: &str,
+        backend: Option<Backend>,
+    ) -> Result<RunConfig, TrainError> {
+        let bad = |message: String| TrainError::Config { source_name: source_name.to_string(), message };
         let mut file: serde_json::Value = if is_toml {
-            toml::from_str(&text).map_err(|e| bad(e.to_string()))?
+            toml::from_str(text).map_err(|e| bad(e.to_string()))?
         } else {
-            serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?
+            serde_json::from_str(text).map_err(|e| bad(e.to_string()))?
         };
         if let (Some(b), Some(obj)) = (backend, file.as_object_mut()) {
             obj.insert("backend".into(), serde_json::to_value(b).expect("backends serialize"));

@@ -58,9 +58,16 @@ pub struct Args {
     /// Edge maps for the regularizers' masks (edges.* in the config).
     #[command(flatten)]
     edges: crate::cmd::edges::EdgeArgs,
-    /// Config file (TOML or JSON) with any subset of the run configuration.
+    /// Config file (TOML or JSON) with any subset of the run configuration. Without it,
+    /// a sparse-view run (--views) of the grid uses the shipped preset for the scene's
+    /// format (LLFF tools/configs/sparse-llff.toml, DTU sparse-dtu.toml, Blender
+    /// sparse-small.toml).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Without --config, use the engine's defaults (the paper's equations and weights,
+    /// unscaled) instead of the sparse-view preset.
+    #[arg(long, conflicts_with = "config")]
+    no_preset: bool,
     /// Override one setting, e.g. `--set train.rays_per_batch=2048` (repeatable;
     /// applied after --config and the flags above).
     #[arg(long = "set", value_name = "KEY=VALUE")]
@@ -69,7 +76,7 @@ pub struct Args {
     /// (to extend the run), --max-seconds and --no-eval may change; flags that would
     /// change the run are refused.
     #[arg(long, conflicts_with_all = [
-        "config", "overrides", "backend", "views", "llff_factor", "no_depth_reg", "no_normal_reg", "reg_variant",
+        "config", "no_preset", "overrides", "backend", "views", "llff_factor", "no_depth_reg", "no_normal_reg", "reg_variant",
         "lambda_depth", "lambda_normal", "regnerf_depth_tv", "anneal_sample_space", "edges",
         "edge_polarity", "tau_e", "no_dilate", "canny_sigma", "canny_low", "canny_high", "overwrite",
     ])]
@@ -86,9 +93,10 @@ pub struct Args {
 fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     // The backend first: its defaults (the MLP's RegNeRF optimizer) sit under the file.
     let backend = args.backend.as_deref().map(str::parse::<Backend>).transpose().map_err(anyhow::Error::msg)?;
-    let mut config = match &args.config {
-        Some(path) => RunConfig::from_file_for(path, backend)?,
-        None => RunConfig::defaults_for(backend.unwrap_or_default()),
+    let mut config = match (&args.config, default_preset(args, backend)?) {
+        (Some(path), _) => RunConfig::from_file_for(path, backend)?,
+        (None, Some(preset)) => RunConfig::from_text_for(preset.text, true, preset.path, backend)?,
+        (None, None) => RunConfig::defaults_for(backend.unwrap_or_default()),
     };
     // Absolute, so that `render`/`eval` of the checkpoint work from any directory.
     config.scene.path = absolute_scene(&args.input.scene)?;
@@ -150,6 +158,31 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
         bail!("--edges {}: no such directory of edge maps (or pass canny or none)", dir.display());
     }
     Ok(config)
+}
+
+/// The shipped preset a run without `--config` uses: sparse-view runs (`--views`) of
+/// the grid on a scene format that has one, unless `--no-preset` (announced on stderr,
+/// so that nobody mistakes it for the engine defaults).
+fn default_preset(args: &Args, backend: Option<Backend>) -> anyhow::Result<Option<crate::presets::Preset>> {
+    if args.config.is_some() || args.no_preset || args.input.views.is_none() || backend.unwrap_or_default() != Backend::Grid {
+        return Ok(None);
+    }
+    // A scene that cannot be read gets its error from loading, as without a preset.
+    let Ok(format) = edgenerf::data::detect_format(&args.input.scene) else {
+        return Ok(None);
+    };
+    let preset = crate::presets::sparse_preset(format);
+    match preset {
+        Some(p) => eprintln!(
+            "no --config: using the sparse-view preset {} for this {format} scene (--no-preset for the engine defaults)",
+            p.path
+        ),
+        None => eprintln!(
+            "no --config: no sparse-view preset is measured for {format} scenes, so the engine defaults (the paper's \
+             weights, unscaled) apply; tools/configs/sparse-*.toml are the measured presets"
+        ),
+    }
+    Ok(preset)
 }
 
 pub(crate) fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
