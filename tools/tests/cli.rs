@@ -382,11 +382,7 @@ fn a_sparse_run_without_config_uses_the_format_preset() {
         args.extend_from_slice(&["--set", "sampler.steps_per_diagonal=48"]);
         // The preset's grid everywhere: the engine default's larger grid would compile
         // its own kernels on lavapipe (minutes) for a test of the reg settings only.
-        let field: Vec<String> = ["n_levels=8", "log2_hashmap_size=16", "finest_resolution=256", "hidden_width=32"]
-            .iter()
-            .map(|f| format!("field.{f}"))
-            .collect();
-        for f in &field {
+        for f in ["field.n_levels=8", "field.log2_hashmap_size=16", "field.finest_resolution=256", "field.hidden_width=32"] {
             args.extend_from_slice(&["--set", f]);
         }
         args.extend_from_slice(extra);
