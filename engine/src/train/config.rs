@@ -97,6 +97,12 @@ pub struct TrainConfig {
     /// photometric loss only one distinct place per 4 rays (the demo: -1.5 dB at 400
     /// steps with every ray in patches).
     pub patch_share: f32,
+    /// Pixel spacing of a patch's 2x2 rays (1: adjacent pixels, the paper). At `s > 1`
+    /// a patch's rays are `(x, y), (x+s, y), (x, y+s), (x+s, y+s)`, so the edge-guided
+    /// terms smooth depth and normals over a wider footprint (lower spatial
+    /// frequencies); such a patch counts as non-edge only where no edge pixel lies
+    /// anywhere in its `(s+1) x (s+1)` span (every ray then gets the span's weight).
+    pub patch_stride: u32,
     /// Sample capacity of a step's batch at the start of the run (rays past it are
     /// cut: they render without their far samples and are dropped from the losses).
     pub max_samples: u32,
@@ -127,6 +133,7 @@ impl Default for TrainConfig {
             batch: BatchKind::Patches,
             images_per_step: 1,
             patch_share: 1.0,
+            patch_stride: 1,
             max_samples: 1 << 18,
             grow_capacity: true,
             seed: 0,
@@ -158,6 +165,9 @@ impl TrainConfig {
                 "train.rays_per_batch = {} must be a multiple of 4 with patch batches (4 rays per 2x2 patch)",
                 self.rays_per_batch
             ));
+        }
+        if !(1..=16).contains(&self.patch_stride) {
+            return Err(format!("train.patch_stride = {} must be 1 to 16: the pixel spacing of a patch's 2x2 rays", self.patch_stride));
         }
         if !(self.patch_share > 0.0 && self.patch_share <= 1.0) {
             return Err(format!("train.patch_share = {} must be in (0, 1]: the share of a patch batch's rays drawn as 2x2 patches", self.patch_share));
@@ -618,6 +628,7 @@ mod tests {
             ("train.images_per_step=0", "train.images_per_step"),
             ("train.patch_share=0", "train.patch_share"),
             ("train.patch_share=1.5", "train.patch_share"),
+            ("train.patch_stride=0", "train.patch_stride"),
             ("train.max_seconds=-1", "train.max_seconds"),
             ("train.level_anneal.start_levels=0", "train.level_anneal.start_levels"),
             ("scene.background=[2,0,0]", "scene.background"),

@@ -395,8 +395,9 @@ impl Trainer {
         }
         let masks = self.edge_masks.as_deref().expect("computed above");
         let n_patches = self.config().train.patches_per_batch();
-        let images = self.config().train.images_per_step;
-        Ok(rays::random_patches(&self.scene, masks, n_patches, n - 4 * n_patches, images, seed, step))
+        let train = &self.config().train;
+        let shape = rays::PatchShape { images_per_step: train.images_per_step, stride: train.patch_stride };
+        Ok(rays::random_patches(&self.scene, masks, n_patches, n - 4 * n_patches, shape, seed, step))
     }
 
     /// One optimisation step on a given batch of `train.rays_per_batch` rays (patch

@@ -119,11 +119,23 @@ fn draw_pixels(scene: &Scene, n: u32, rng: &mut SplitMix64, batch: &mut PixelBat
     }
 }
 
+/// How [`random_patches`] lays out a step's patches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PatchShape {
+    /// Distinct training views the patches are dealt to (the paper: 1).
+    pub images_per_step: u32,
+    /// Pixel spacing of a patch's rays (`train.patch_stride`; 1: adjacent pixels).
+    pub stride: u32,
+}
+
 /// Draws `n_patches` random 2x2 patches for `step` (EdgeNeRF's batches): from
-/// `images_per_step` distinct training views chosen at random (the paper: one), patches
-/// dealt to them in turn, top-left corners uniform over the image. Rays
-/// `4m .. 4m+3` are patch `m` in the order `(x, y), (x+1, y), (x, y+1), (x+1, y+1)`.
-/// `masks[i]` is the edge mask of `scene.split.train[i]`. After the patches come
+/// `shape.images_per_step` distinct training views chosen at random (the paper: one),
+/// patches dealt to them in turn, top-left corners uniform over the image. Rays
+/// `4m .. 4m+3` are patch `m` in the order `(x, y), (x+s, y), (x, y+s), (x+s, y+s)`
+/// with `s = shape.stride` (1: adjacent pixels). Each ray carries its pixel's edge
+/// weight at `s = 1`; at `s > 1` every ray of a patch carries the minimum over the
+/// patch's `(s+1) x (s+1)` span, so an edge between the four pixels makes it an edge
+/// patch. `masks[i]` is the edge mask of `scene.split.train[i]`. After the patches come
 /// `n_pixels` single pixels uniform over all training views with edge weight 0 (`0`:
 /// none), so that a batch can carry fewer patches than rays (`train.patch_share`): every
 /// group of 4 of them is an all-edge "patch" to the regularizers, which adds nothing,
@@ -134,7 +146,7 @@ pub fn random_patches(
     masks: &[EdgeMask],
     n_patches: u32,
     n_pixels: u32,
-    images_per_step: u32,
+    shape: PatchShape,
     seed: u64,
     step: u64,
 ) -> PixelBatch {
@@ -143,29 +155,35 @@ pub fn random_patches(
     assert_eq!(masks.len(), train.len(), "one edge mask per training view");
     // A partial Fisher-Yates shuffle picks the step's distinct views.
     let mut order: Vec<usize> = (0..train.len()).collect();
-    let k = (images_per_step.max(1) as usize).min(train.len());
+    let k = (shape.images_per_step.max(1) as usize).min(train.len());
     for i in 0..k {
         let j = i + rng.below((train.len() - i) as u64) as usize;
         order.swap(i, j);
     }
     let (w, h) = scene.image_size();
+    let s = shape.stride.max(1);
     let mut batch = PixelBatch::default();
     for m in 0..n_patches as usize {
         let i = order[m % k];
         let view = train[i];
         let (mut x0, mut y0) = (0, 0);
         for _ in 0..MASK_DRAWS {
-            x0 = rng.below((w - 1).max(1) as u64) as u32;
-            y0 = rng.below((h - 1).max(1) as u64) as u32;
+            x0 = rng.below(w.saturating_sub(s).max(1) as u64) as u32;
+            y0 = rng.below(h.saturating_sub(s).max(1) as u64) as u32;
             let inside = |dx: u32, dy: u32| drawable(scene, view, (x0 + dx).min(w - 1), (y0 + dy).min(h - 1));
-            if inside(0, 0) && inside(1, 0) && inside(0, 1) && inside(1, 1) {
+            if inside(0, 0) && inside(s, 0) && inside(0, s) && inside(s, s) {
                 break;
             }
         }
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+        // At stride 1 the span is the patch itself, whose pixels keep their own weight.
+        let span = (s > 1).then(|| {
+            let (x1, y1) = ((x0 + s).min(w - 1), (y0 + s).min(h - 1));
+            (y0..=y1).flat_map(|y| (x0..=x1).map(move |x| (x, y))).map(|(x, y)| masks[i].at(x, y)).fold(1.0f32, f32::min)
+        });
+        for (dx, dy) in [(0, 0), (s, 0), (0, s), (s, s)] {
             let (x, y) = ((x0 + dx).min(w - 1), (y0 + dy).min(h - 1));
             let z_scale = batch.push(scene, view, x, y);
-            batch.reg.push([masks[i].at(x, y), z_scale]);
+            batch.reg.push([span.unwrap_or_else(|| masks[i].at(x, y)), z_scale]);
         }
     }
     draw_pixels(scene, n_pixels, &mut rng, &mut batch, true);
@@ -216,7 +234,8 @@ mod tests {
         let pixels = random_pixels(&scene, 40, 7, 3);
         assert!(pixels.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "single pixels");
         let masks: Vec<EdgeMask> = scene.split.train.iter().map(|_| EdgeMask::all_non_edge(w, h)).collect();
-        let patches = random_patches(&scene, &masks, 10, 6, 1, 7, 3);
+        let shape = PatchShape { images_per_step: 1, stride: 1 };
+        let patches = random_patches(&scene, &masks, 10, 6, shape, 7, 3);
         assert!(patches.rays.iter().all(|r| allowed(ray_pixel(&scene, r))), "whole patches and the pixels after them");
         // The pixels after the patches carry edge weight 0 (no regularizer reads them).
         assert_eq!(patches.rays.len(), 46);
@@ -227,6 +246,50 @@ mod tests {
         }
         let free = random_pixels(&scene, 40, 7, 3);
         assert!(free.rays.iter().any(|r| !allowed(ray_pixel(&scene, r))));
+    }
+
+    #[test]
+    fn strided_patches_span_their_stride_and_take_the_edge_weight_of_the_span() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
+        let opts = crate::data::LoadOptions { views: Some(3), ..Default::default() };
+        let scene = Scene::load(&dir, &opts).unwrap();
+        let (w, h) = scene.image_size();
+        // Edge columns at every x divisible by 10 in every view: a patch straddling one
+        // at stride 4 mostly has none of its four pixels on it.
+        let mut mask = EdgeMask::all_non_edge(w, h);
+        for y in 0..h {
+            for x in (0..w).step_by(10) {
+                mask.non_edge[(y * w + x) as usize] = 0;
+            }
+        }
+        let masks = vec![mask.clone(); scene.split.train.len()];
+        let stride = 4;
+        let b = random_patches(&scene, &masks, 400, 0, PatchShape { images_per_step: 3, stride }, 11, 5);
+        let pixel = |r: &GpuRay, view: usize| {
+            let (o, d) = (glam::Vec3::from(r.origin), glam::Vec3::from(r.dir));
+            (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).find(|&(x, y)| {
+                let q = to_gpu_ray(&scene, &scene.ray(view, x, y));
+                glam::Vec3::from(q.origin) == o && glam::Vec3::from(q.dir) == d
+            })
+        };
+        let (mut straddling, mut clear, mut pixels_on_edges) = (0, 0, 0);
+        for (m, patch) in b.rays.chunks(4).enumerate().take(40) {
+            let view = scene.split.train.iter().copied().find(|&v| pixel(&patch[0], v).is_some()).expect("a training view");
+            let p: Vec<(u32, u32)> = patch.iter().map(|r| pixel(r, view).expect("same view")).collect();
+            let (x0, y0) = p[0];
+            assert_eq!(p, vec![(x0, y0), (x0 + stride, y0), (x0, y0 + stride), (x0 + stride, y0 + stride)]);
+            let e = &b.reg[4 * m..4 * m + 4];
+            assert!(e.iter().all(|r| r[0] == e[0][0]), "one weight per strided patch");
+            if (x0..=x0 + stride).any(|x| x % 10 == 0) {
+                assert_eq!(e[0][0], 0.0, "an edge column in the span makes an edge patch");
+                straddling += 1;
+                pixels_on_edges += usize::from(x0 % 10 == 0 || (x0 + stride) % 10 == 0);
+            } else {
+                assert_eq!(e[0][0], 1.0);
+                clear += 1;
+            }
+        }
+        assert!(straddling > pixels_on_edges && clear > 0, "{straddling} straddling ({pixels_on_edges} with a pixel on the edge), {clear} clear");
     }
 
     #[test]

@@ -112,6 +112,20 @@
 //!   1.2-1.3x faster: there the unrolled products spill.
 //!   A warp-cooperative (tiny-cuda-nn "fully fused") formulation with weights in
 //!   workgroup memory is the next optimisation for NVIDIA.
+//! * **Where the backward's time goes on lavapipe** (`edgenerf speed --preset demo`,
+//!   2-core CPU, 2026-11-26; 68 k samples per step, backward 110 ms of a 165 ms step):
+//!   the per-sample kernel takes about 80 ms and the `outer` products about 30 ms.
+//!   Generating the kernel without the hash-feature scatter roughly halves the
+//!   per-sample kernel, so the scatter (8 corners x 2 features per active level) is its
+//!   largest part. It is not the atomics as such: plain loads and stores in their place
+//!   (racy, timing only) ran no faster, because llvmpipe executes every scattered
+//!   access lane by lane, atomic or not. Two measured dead ends: aggregating equal
+//!   entries across the subgroup first (`subgroupMin` / `subgroupAdd`, one atomic per
+//!   distinct entry) made the demo's backward 2x slower, and aggregating only the
+//!   first lane's entry saved nothing; consecutive samples of a ray share a cell only
+//!   on the two or three coarsest levels at this sample spacing. What would cut the
+//!   scatter is fewer scattered accesses per sample (a per-ray pass accumulating a
+//!   cell's corners over the consecutive samples inside it), not cheaper ones.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
