@@ -262,7 +262,7 @@ mod tests {
                 mask.non_edge[(y * w + x) as usize] = 0;
             }
         }
-        let masks = vec![mask.clone(); scene.split.train.len()];
+        let masks = vec![mask; scene.split.train.len()];
         let stride = 4;
         let b = random_patches(&scene, &masks, 400, 0, PatchShape { images_per_step: 3, stride }, 11, 5);
         let pixel = |r: &GpuRay, view: usize| {
