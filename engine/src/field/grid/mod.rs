@@ -115,11 +115,17 @@
 //! * **Where the backward's time goes on lavapipe** (`edgenerf speed --preset demo`,
 //!   2-core CPU, 2026-11-26; 68 k samples per step, backward 110 ms of a 165 ms step):
 //!   the per-sample kernel takes about 80 ms and the `outer` products about 30 ms.
-//!   Generating the kernel without the hash-feature scatter roughly halves the
-//!   per-sample kernel, so the scatter (8 corners x 2 features per active level) is its
-//!   largest part. It is not the atomics as such: plain loads and stores in their place
-//!   (racy, timing only) ran no faster, because llvmpipe executes every scattered
-//!   access lane by lane, atomic or not. Two measured dead ends: aggregating equal
+//!   Generating the kernel without the hash-feature scatter (8 corners x 2 features per
+//!   active level) makes the per-sample kernel about 2.8x faster, but also the *forward*
+//!   (34 -> 12 ms), which does not scatter: with the parameters frozen at their
+//!   initial values and the same samples, the forward ran 34 ms after backward passes
+//!   that scattered and 18 ms after ones that did not. So part of the scatter's cost
+//!   is what its 8.7 M random writes a step do to the memory state the next kernels
+//!   read (not denormals: flush-to-zero forced on lavapipe's threads changed nothing;
+//!   `perf` shows the same forward code taking 2.6x the CPU time). It is not the
+//!   atomics as such: plain loads and stores in their place (racy, timing only) ran no
+//!   faster, because llvmpipe executes every scattered access lane by lane, atomic or
+//!   not. Two measured dead ends: aggregating equal
 //!   entries across the subgroup first (`subgroupMin` / `subgroupAdd`, one atomic per
 //!   distinct entry) made the demo's backward 2x slower, and aggregating only the
 //!   first lane's entry saved nothing; consecutive samples of a ray share a cell only
