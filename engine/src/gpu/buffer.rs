@@ -83,34 +83,11 @@ impl<T: Pod> GpuBuffer<T> {
         gpu.queue.submit([enc.finish()]);
     }
 
-    /// Copies the buffer back to the host, waiting for all submitted work first.
+    /// Copies the buffer back to the host, waiting for all submitted work first (a
+    /// [`ReadBatch`](super::ReadBatch) of one).
     pub fn read(&self, gpu: &Gpu) -> Result<Vec<T>, GpuError> {
-        if self.len == 0 {
-            return Ok(Vec::new());
-        }
-        let bytes = (self.len * std::mem::size_of::<T>()) as u64;
-        let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&self.buffer, 0, &staging, 0, bytes);
-        gpu.queue.submit([enc.finish()]);
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let view = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = bytemuck::cast_slice::<u8, T>(&view).to_vec();
-        drop(view);
-        staging.unmap();
-        Ok(out)
+        let mut batch = super::ReadBatch::new();
+        let slot = batch.add(self, self.len);
+        Ok(batch.read(gpu)?.get(&slot))
     }
 }

@@ -24,6 +24,7 @@ mod buffer;
 pub mod selftest;
 mod indirect;
 pub mod kernel;
+mod readback;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -31,6 +32,7 @@ use std::sync::{Arc, Mutex};
 pub use buffer::GpuBuffer;
 pub use indirect::IndirectArgs;
 pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
+pub use readback::{ReadBack, ReadBatch, ReadSlot};
 
 /// What to install when no Vulkan driver is found.
 pub const DRIVER_HINT: &str = "install a Vulkan driver: on Debian/Ubuntu without a GPU run \

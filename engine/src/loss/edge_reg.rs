@@ -354,13 +354,18 @@ impl EdgeReg {
 
     /// `L_z` and `L_n` of the last launch over `n_patches` (waits for the GPU).
     pub fn losses(&self, gpu: &Gpu, n_patches: u32) -> Result<EdgeRegLosses, GpuError> {
-        let per_patch = self.patch_loss.read(gpu)?;
+        Ok(Self::losses_of(&self.patch_loss.read(gpu)?[..n_patches as usize]))
+    }
+
+    /// `L_z` and `L_n` from the per-patch terms (`patch_loss`'s first `n_patches`, read
+    /// back).
+    pub fn losses_of(per_patch: &[[f32; 2]]) -> EdgeRegLosses {
         let (mut d, mut n) = (0.0f64, 0.0f64);
-        for p in &per_patch[..n_patches as usize] {
+        for p in per_patch {
             d += p[0] as f64;
             n += p[1] as f64;
         }
-        Ok(EdgeRegLosses { depth: d as f32, normal: n as f32 })
+        EdgeRegLosses { depth: d as f32, normal: n as f32 }
     }
 }
 

@@ -21,6 +21,10 @@ pub use photometric::Photometric;
 /// The sum (in `f64`) of the first `n` per-ray or per-patch loss terms a kernel wrote into
 /// `terms` (waits for the GPU).
 pub(crate) fn sum_of_terms(gpu: &crate::gpu::Gpu, terms: &crate::gpu::GpuBuffer<f32>, n: u32) -> Result<f32, crate::gpu::GpuError> {
-    let values = terms.read(gpu)?;
-    Ok(values[..n as usize].iter().map(|&v| v as f64).sum::<f64>() as f32)
+    Ok(sum_terms(&terms.read(gpu)?[..n as usize]))
+}
+
+/// The sum (in `f64`) of per-ray or per-patch loss terms read back from a kernel.
+pub fn sum_terms(values: &[f32]) -> f32 {
+    values.iter().map(|&v| v as f64).sum::<f64>() as f32
 }

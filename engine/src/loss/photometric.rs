@@ -111,9 +111,14 @@ impl Photometric {
     /// Mean squared error of the last launch over `n` rays with weights summing to
     /// `weight_sum` (waits for the GPU).
     pub fn mse(&self, gpu: &Gpu, n: usize, weight_sum: f32) -> Result<f32, GpuError> {
-        let errors = self.sq_error.read(gpu)?;
-        let sum: f64 = errors[..n].iter().map(|&e| e as f64).sum();
-        Ok(if weight_sum > 0.0 { (sum / (3.0 * weight_sum as f64)) as f32 } else { 0.0 })
+        Ok(Self::mse_of(&self.sq_error.read(gpu)?[..n], weight_sum))
+    }
+
+    /// Mean squared error from the per-ray squared errors (`sq_error`'s first `n`, read
+    /// back) of rays with weights summing to `weight_sum`.
+    pub fn mse_of(errors: &[f32], weight_sum: f32) -> f32 {
+        let sum: f64 = errors.iter().map(|&e| e as f64).sum();
+        if weight_sum > 0.0 { (sum / (3.0 * weight_sum as f64)) as f32 } else { 0.0 }
     }
 }
 

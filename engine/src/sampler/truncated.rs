@@ -90,6 +90,11 @@ impl DropTruncated {
     pub fn dropped(&self, gpu: &Gpu) -> Result<u32, GpuError> {
         Ok(self.dropped.read(gpu)?[0])
     }
+
+    /// The one-element buffer holding that count (for a batched readback).
+    pub fn dropped_count(&self) -> &GpuBuffer<u32> {
+        &self.dropped
+    }
 }
 
 #[cfg(test)]

@@ -434,7 +434,7 @@ impl Trainer {
         self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
         enc.submit();
         let grad = self.grad_norm.read(&gpu)?;
-        let counts = self.pipeline.sample_counts(&gpu)?;
+        let counts = losses.samples;
         self.end_stage(Stage::Optimizer)?;
         if let Some(p) = &mut self.profile {
             p.steps += 1;

@@ -20,7 +20,7 @@
 //!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
 //!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
-//!   readbacks: rays dropped, the losses -> BatchLosses
+//!   one readback (one wait): the losses, rays dropped and the sampler's counts -> BatchLosses
 //! Pipeline::backward: the field's gradients zeroed, then the field backward over the
 //!   listed samples (a fifth to a quarter of a batch past early termination late in a run)
 //! ```
@@ -35,9 +35,9 @@
 //!   random-pose ones; the sample capacity only grows ([`Pipeline::grow_capacity`]).
 
 use crate::data::Scene;
-use crate::gpu::{Gpu, GpuBuffer};
+use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{DepthNormal, DepthTv, EdgeReg, EdgeRegLosses, EdgeRegWeights, Photometric};
+use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -95,6 +95,8 @@ pub struct BatchLosses {
     pub depth_normal: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
+    /// The sampler's counts: samples kept, and samples the rays wanted.
+    pub samples: [u32; 2],
     /// The priors' weights the losses entered with.
     pub priors: RayPriors,
 }
@@ -263,13 +265,6 @@ impl Pipeline {
         Ok(())
     }
 
-    /// The sampler's counts of the last batch: samples kept, and samples the rays
-    /// wanted (waits for the GPU).
-    pub fn sample_counts(&self, gpu: &Gpu) -> Result<[u32; 2], TrainError> {
-        let counts = self.bufs.batch.count.read(gpu)?;
-        Ok([counts[0], counts[1]])
-    }
-
     /// Grows the batch buffers when a batch's rays wanted `wanted` samples, more than
     /// the capacity ([`super::TrainConfig::grow_capacity`]): to 1.25x `wanted`, rounded
     /// up to whole 4096-sample blocks, at most what one storage binding of the device
@@ -352,30 +347,37 @@ impl Pipeline {
         Ok(())
     }
 
-    /// The losses of the last batch (waits for the GPU). `cut`: whether the sampler
-    /// counted the rays' wanted samples (then the drop of cut rays ran).
+    /// The losses of the last batch and the sampler's counts, read back together (one
+    /// wait for the GPU). `cut`: whether the sampler counted the rays' wanted samples
+    /// (then the drop of cut rays ran).
     fn read_losses(&self, gpu: &Gpu, plan: &StepPlan, cut: bool) -> Result<BatchLosses, TrainError> {
-        let n = self.n;
-        let rays_dropped = if cut { self.drop_truncated.dropped(gpu)? } else { 0 };
-        let color = self.photometric.mse(gpu, n as usize, n.saturating_sub(rays_dropped).max(1) as f32)?;
-        let reg = if plan.reg.is_some() { self.edge_reg.losses(gpu, n / 4)? } else { EdgeRegLosses::default() };
-        let depth_normal = match plan.reg.and_then(|w| w.depth_normal_term()) {
-            Some(_) => self.depth_normal.loss(gpu, n / 4)?,
-            None => 0.0,
-        };
-        let tv = if plan.tv.is_some() { self.depth_tv.loss(gpu, self.n_tv)? } else { 0.0 };
+        let (n, quarter) = (self.n as usize, self.n as usize / 4);
+        let dn_on = plan.reg.and_then(|w| w.depth_normal_term()).is_some();
+        let mut batch = ReadBatch::new();
+        let counts = batch.add(&self.bufs.batch.count, 2);
+        let dropped = cut.then(|| batch.add(self.drop_truncated.dropped_count(), 1));
+        let sq_error = batch.add(&self.photometric.sq_error, n);
+        let reg = plan.reg.is_some().then(|| batch.add(&self.edge_reg.patch_loss, quarter));
+        let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
+        let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
+        let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
+        let back = batch.read(gpu)?;
+        let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);
+        let counts = back.get(&counts);
         let priors = *self.renderer.priors();
-        let p = if self.priors_on { priors.losses(&self.bufs.render_out.aux.read(gpu)?) } else { Default::default() };
+        let p = aux.map(|a| priors.losses(&back.get(&a))).unwrap_or_default();
+        let reg = reg.map(|r| EdgeReg::losses_of(&back.get(&r))).unwrap_or_default();
         Ok(BatchLosses {
-            color,
+            color: Photometric::mse_of(&back.get(&sq_error), self.n.saturating_sub(rays_dropped).max(1) as f32),
             depth: reg.depth,
             normal: reg.normal,
-            tv,
+            tv: tv.map_or(0.0, |t| sum_terms(&back.get(&t))),
             distortion: p.distortion,
             occlusion: p.occlusion,
             orientation: p.orientation,
-            depth_normal,
+            depth_normal: depth_normal.map_or(0.0, |d| sum_terms(&back.get(&d))),
             rays_dropped,
+            samples: [counts[0], counts[1]],
             priors,
         })
     }

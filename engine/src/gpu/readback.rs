@@ -1,0 +1,131 @@
+//! Batched readbacks: several buffers copied to the host with one submission, one map
+//! and one wait, instead of one of each per buffer.
+//!
+//! A training step reads its losses, the sampler's counts and the dropped-ray count
+//! together ([`ReadBatch`]); on a GPU each separate readback is a round trip that
+//! drains the queue, so the step waits once instead of once per value.
+//!
+//! Invariants: a batch reads what every earlier submission wrote (its copies are queued
+//! after them), exactly as [`GpuBuffer::read`], which is a batch of one; the values
+//! come back bit for bit, in the order of [`ReadBatch::add`].
+
+use std::marker::PhantomData;
+
+use super::{Gpu, GpuBuffer, GpuError};
+
+/// Buffers (their first elements) to read back together.
+#[derive(Default)]
+pub struct ReadBatch<'a> {
+    parts: Vec<(&'a wgpu::Buffer, u64)>,
+}
+
+/// Where one buffer's values are in a [`ReadBack`]: `len` elements of type `T`.
+#[derive(Debug)]
+pub struct ReadSlot<T> {
+    index: usize,
+    len: usize,
+    _values: PhantomData<T>,
+}
+
+/// The host copy of a [`ReadBatch`].
+pub struct ReadBack {
+    bytes: Vec<u8>,
+    /// Byte range of each part in `bytes`.
+    ranges: Vec<std::ops::Range<usize>>,
+}
+
+impl<'a> ReadBatch<'a> {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds the first `len` elements of `buffer` (at most its length) to the batch.
+    pub fn add<T: bytemuck::Pod>(&mut self, buffer: &'a GpuBuffer<T>, len: usize) -> ReadSlot<T> {
+        assert!(len <= buffer.len(), "readback of {len} elements from a buffer of {}", buffer.len());
+        self.parts.push((&buffer.buffer, (len * std::mem::size_of::<T>()) as u64));
+        ReadSlot { index: self.parts.len() - 1, len, _values: PhantomData }
+    }
+
+    /// Copies every part into one staging buffer, submits, and waits for the GPU.
+    pub fn read(self, gpu: &Gpu) -> Result<ReadBack, GpuError> {
+        let mut ranges = Vec::with_capacity(self.parts.len());
+        let mut total = 0u64;
+        for (_, bytes) in &self.parts {
+            // Every element type is a whole number of 4-byte words (the copy alignment).
+            debug_assert_eq!(bytes % wgpu::COPY_BUFFER_ALIGNMENT, 0);
+            ranges.push(total as usize..(total + bytes) as usize);
+            total += bytes;
+        }
+        if total == 0 {
+            return Ok(ReadBack { bytes: Vec::new(), ranges });
+        }
+        let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: total,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for ((buffer, bytes), range) in self.parts.iter().zip(&ranges) {
+            if *bytes > 0 {
+                enc.copy_buffer_to_buffer(buffer, 0, &staging, range.start as u64, *bytes);
+            }
+        }
+        gpu.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        gpu.wait()?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let view = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+        let bytes = view.to_vec();
+        drop(view);
+        staging.unmap();
+        Ok(ReadBack { bytes, ranges })
+    }
+}
+
+impl ReadBack {
+    /// The values of `slot`'s part.
+    pub fn get<T: bytemuck::Pod>(&self, slot: &ReadSlot<T>) -> Vec<T> {
+        let bytes = &self.bytes[self.ranges[slot.index].clone()];
+        let values: Vec<T> = bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect();
+        debug_assert_eq!(values.len(), slot.len);
+        values
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::test_gpu;
+
+    /// Parts of different types and lengths (a prefix, an empty one, a whole buffer)
+    /// come back in order, bit for bit, after the writes submitted before the batch.
+    #[test]
+    fn a_batch_reads_every_part_after_earlier_writes() {
+        let gpu = test_gpu(false);
+        let floats = GpuBuffer::from_slice(&gpu, "floats", &[1.5f32, -2.0, f32::MIN_POSITIVE, 7.0]).unwrap();
+        let words = GpuBuffer::<u32>::zeros(&gpu, "words", 3).unwrap();
+        words.write(&gpu, &[9, u32::MAX, 4]);
+        let pairs = GpuBuffer::from_slice(&gpu, "pairs", &[[0.25f32, 0.5], [3.0, -0.0]]).unwrap();
+        let mut batch = ReadBatch::new();
+        let a = batch.add(&floats, 3);
+        let none = batch.add(&words, 0);
+        let b = batch.add(&words, 3);
+        let c = batch.add(&pairs, 2);
+        let back = batch.read(&gpu).unwrap();
+        assert_eq!(back.get(&a), vec![1.5, -2.0, f32::MIN_POSITIVE]);
+        assert!(back.get(&none).is_empty());
+        assert_eq!(back.get(&b), vec![9, u32::MAX, 4]);
+        let p = back.get(&c);
+        assert_eq!(p[0], [0.25, 0.5]);
+        assert_eq!(p[1][0], 3.0);
+        assert!(p[1][1] == 0.0 && p[1][1].is_sign_negative());
+        assert!(ReadBatch::new().read(&gpu).unwrap().bytes.is_empty());
+    }
+}
