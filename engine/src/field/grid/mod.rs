@@ -58,6 +58,16 @@
 //! keep every level. The backward below holds with `J` read as `J_beta` throughout
 //! (the same code, `s_l` scaled by `beta_l` in the normal path's `dF` term).
 //!
+//! ## Dense normal levels
+//! A hashed level (`R_l^3 > T`) shares each entry among about `R_l^3 / T` vertices, so
+//! the gradient of its trilinear interpolation jumps wherever a colliding vertex's
+//! update moved the shared features: noise in the normal that no smoothness term can
+//! remove without also flattening the geometry. With
+//! [`GridConfig::dense_normal_levels`] every level with `beta_l > 0` is stored densely
+//! (`R_l^3` entries, indexed `x + R (y + R z)` as the levels that fit `T`), and the
+//! hashed levels are those that only shape density and colour. Nothing else changes:
+//! the kernels and the reference read `dense_res` per level.
+//!
 //! # Backward (per sample; c = dL/dn, everything else standard back-propagation)
 //! ```text
 //! colour:  d_o = dL/drgb * rgb (1 - rgb);  dac2 = C3^T d_o * m2;  dac1 = C2^T dac2 * m1
@@ -132,6 +142,19 @@
 //!   on the two or three coarsest levels at this sample spacing. What would cut the
 //!   scatter is fewer scattered accesses per sample (a per-ray pass accumulating a
 //!   cell's corners over the consecutive samples inside it), not cheaper ones.
+//!   A third dead end (2026-11-26, later; demo, backward 107 ms in the same
+//!   invocation): a *staged table*, features and gradient interleaved as `(f0, f1, g0,
+//!   g1)` per entry so that each corner's gather and scatter touch one cache line,
+//!   copied in before the backward and out after it. The backward kernels then took
+//!   99 ms, but the two copies of the 0.4 M entries cost more than that saved (113 ms
+//!   in all), so it is not kept. A timing-only variant that gathered from the
+//!   gradient buffer itself (one 3.2 MB array touched instead of two) took 88 ms: the
+//!   bytes the random accesses span set their cost, so only a smaller table (fewer or
+//!   half-precision features) would cut it much. Nor is it the scratch's 85 MB a step
+//!   (1232 bytes per sample at width 32) falling out of cache between the per-sample
+//!   kernel and the outer products: chunks of 4096 or 8192 samples (5-10 MB of
+//!   scratch) made the backward slower (145 and 134 ms against 122 ms in one chunk,
+//!   one invocation; `field.backward_chunk`).
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
@@ -218,6 +241,12 @@ pub struct GridConfig {
     /// band-limited normal that keeps its meaning when `n_levels` changes). 0 (the
     /// default) keeps every level.
     pub normal_max_resolution: f32,
+    /// Stores every level that steers the analytic normal (`beta_l > 0`) densely, with
+    /// its `R_l^3` entries, also where `R_l^3 > T`: its features then never share an
+    /// entry with another vertex's, so the normal carries no hash-collision noise
+    /// ("Dense normal levels" in the module doc). At most [`MAX_DENSE_ENTRIES`] per
+    /// level. Off by default (Instant-NGP's layout).
+    pub dense_normal_levels: bool,
     /// Added to the density MLP's output before the activation, so the untrained
     /// field's density is about `act(density_bias)` everywhere (trunc_exp: 1 at 0, the
     /// Instant-NGP start). Negative values start from nearly empty space, which only
@@ -246,6 +275,7 @@ impl Default for GridConfig {
             normal_eps: 1e-10,
             normal_level_weights: Vec::new(),
             normal_max_resolution: 0.0,
+            dense_normal_levels: false,
             density_bias: 0.0,
             backward_chunk: 1 << 16,
             table_lr_scale: 1.0,
@@ -305,6 +335,19 @@ impl GridConfig {
                 self.base_resolution
             ));
         }
+        if self.dense_normal_levels {
+            let b = self.per_level_scale();
+            for (l, w) in self.normal_weights().iter().enumerate() {
+                let entries = level_vertices(self.base_resolution, b, l as u32).pow(3);
+                if *w > 0.0 && entries > MAX_DENSE_ENTRIES {
+                    return err(format!(
+                        "dense_normal_levels: level {l} steers the normal and would need {entries} dense entries \
+                         (at most {MAX_DENSE_ENTRIES}); narrow the normal's band (normal_max_resolution or \
+                         normal_level_weights) or turn dense_normal_levels off"
+                    ));
+                }
+            }
+        }
         if self.backward_chunk < 64 {
             return err(format!("backward_chunk = {} must be at least 64", self.backward_chunk));
         }
@@ -352,6 +395,20 @@ pub struct LevelInfo {
     pub scale: f32,
 }
 
+/// Most entries of a level stored densely because it steers the normal
+/// ([`GridConfig::dense_normal_levels`]): `256^3`, 128 MiB of features.
+pub const MAX_DENSE_ENTRIES: u64 = 1 << 24;
+
+/// `s_l = N_min b^l - 1` of level `l`.
+fn level_scale(base_resolution: u32, b: f64, l: u32) -> f32 {
+    (base_resolution as f64 * b.powi(l as i32) - 1.0) as f32
+}
+
+/// `R_l`, the vertices per axis of level `l`.
+fn level_vertices(base_resolution: u32, b: f64, l: u32) -> u64 {
+    (level_scale(base_resolution, b, l) + 0.5).floor() as u64 + 2
+}
+
 /// Sizes and offsets of every parameter of a [`GridConfig`] (offsets in floats).
 #[derive(Clone, Debug, PartialEq)]
 pub struct GridLayout {
@@ -375,12 +432,14 @@ impl GridLayout {
         cfg.validate()?;
         let t = 1u64 << cfg.log2_hashmap_size;
         let b = cfg.per_level_scale();
+        let normal_weights = cfg.normal_weights();
         let mut levels = Vec::new();
         let mut offset = 0u64;
         for l in 0..cfg.n_levels {
-            let scale = (cfg.base_resolution as f64 * b.powi(l as i32) - 1.0) as f32;
-            let res = (scale + 0.5).floor() as u64 + 2;
-            let (size, dense_res) = if res * res * res <= t { (res * res * res, res as u32) } else { (t, 0) };
+            let scale = level_scale(cfg.base_resolution, b, l);
+            let res = level_vertices(cfg.base_resolution, b, l);
+            let dense = res * res * res <= t || (cfg.dense_normal_levels && normal_weights[l as usize] > 0.0);
+            let (size, dense_res) = if dense { (res * res * res, res as u32) } else { (t, 0) };
             levels.push(LevelInfo { offset: offset as u32, size: size as u32, dense_res, scale });
             offset += size;
         }

@@ -492,6 +492,50 @@ fn field_grid_normal_level_weights_are_validated() {
     }
 }
 
+/// `dense_normal_levels`: the levels of the normal's band become dense where they
+/// would be hashed, the others keep Instant-NGP's layout; a band whose dense levels
+/// would not fit is a configuration error.
+#[test]
+fn field_grid_dense_normal_levels_store_the_normal_band_densely() {
+    // small_config: resolutions 4, 8.85, 19.6, 43.4, 96, T = 2^11; levels 0-1 dense.
+    let cfg = GridConfig { normal_max_resolution: 20.0, dense_normal_levels: true, ..small_config() };
+    let lay = GridLayout::new(&cfg).unwrap();
+    let kinds: Vec<bool> = lay.levels.iter().map(|l| l.dense_res > 0).collect();
+    assert_eq!(kinds, [true, true, true, false, false]);
+    let r = (lay.levels[2].scale + 0.5).floor() as u32 + 2;
+    assert_eq!((lay.levels[2].dense_res, lay.levels[2].size), (r, r * r * r));
+    assert!(r * r * r > 1 << 11, "level 2 is hashed without the switch");
+    let mut offset = 0;
+    for l in &lay.levels {
+        assert_eq!(l.offset, offset);
+        offset += l.size;
+    }
+    assert_eq!(lay.table_entries, offset as usize);
+    // The sparse preset's band (4 levels at 2^16): level 3 (54^3 vertices) becomes dense.
+    let sparse = GridConfig {
+        n_levels: 8,
+        log2_hashmap_size: 16,
+        finest_resolution: 256.0,
+        hidden_width: 32,
+        normal_level_weights: vec![1., 1., 1., 1., 0., 0., 0., 0.],
+        dense_normal_levels: true,
+        ..GridConfig::default()
+    };
+    let sizes: Vec<u32> = GridLayout::new(&sparse).unwrap().levels.iter().map(|l| l.size).collect();
+    assert_eq!(sizes[3], 54 * 54 * 54);
+    assert!(sizes[4..].iter().all(|&s| s == 1 << 16));
+    // Every level in the normal at the defaults (finest 2048): far too large dense.
+    let err = GridConfig { dense_normal_levels: true, ..GridConfig::default() }.validate().unwrap_err();
+    assert!(err.to_string().contains("dense_normal_levels"), "{err}");
+}
+
+/// The kernels read a level made dense by the switch like any dense level: forward,
+/// backward and normals equal the reference and finite differences.
+#[test]
+fn field_grid_end_to_end_gradients_with_dense_normal_levels() {
+    end_to_end(&GridConfig { normal_max_resolution: 20.0, dense_normal_levels: true, ..small_config() }, false, 48, 8);
+}
+
 // ---------------------------------------------------------------- options
 
 #[test]
