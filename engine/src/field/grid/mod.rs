@@ -149,12 +149,14 @@
 //!   99 ms, but the two copies of the 0.4 M entries cost more than that saved (113 ms
 //!   in all), so it is not kept. A timing-only variant that gathered from the
 //!   gradient buffer itself (one 3.2 MB array touched instead of two) took 88 ms: the
-//!   bytes the random accesses span set their cost, so only a smaller table (fewer or
-//!   half-precision features) would cut it much. Nor is it the scratch's 85 MB a step
-//!   (1232 bytes per sample at width 32) falling out of cache between the per-sample
-//!   kernel and the outer products: chunks of 4096 or 8192 samples (5-10 MB of
-//!   scratch) made the backward slower (145 and 134 ms against 122 ms in one chunk,
-//!   one invocation; `field.backward_chunk`).
+//!   bytes the random accesses span set the backward's cost. The forward's are not
+//!   bound the same way: a timing-only forward gathering every other entry (half the
+//!   bytes spanned, what a half-precision table would give) ran as fast as the real
+//!   one (29-32 ms for 65 k samples, `field_grid_throughput_small`). Nor is it the
+//!   scratch's 85 MB a step (1232 bytes per sample at width 32) falling out of cache
+//!   between the per-sample kernel and the outer products: chunks of 4096 or 8192
+//!   samples (5-10 MB of scratch) made the backward slower (145 and 134 ms against
+//!   122 ms in one chunk, one invocation; `field.backward_chunk`).
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
