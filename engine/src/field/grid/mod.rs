@@ -340,7 +340,7 @@ impl GridConfig {
         if self.dense_normal_levels {
             let b = self.per_level_scale();
             for (l, w) in self.normal_weights().iter().enumerate() {
-                let entries = level_vertices(self.base_resolution, b, l as u32).pow(3);
+                let entries = level_vertices(self.base_resolution, b, l as u32).saturating_pow(3);
                 if *w > 0.0 && entries > MAX_DENSE_ENTRIES {
                     return err(format!(
                         "dense_normal_levels: level {l} steers the normal and would need {entries} dense entries \
