@@ -1,7 +1,8 @@
 //! End-to-end training on a committed synthetic scene (lavapipe): test PSNR rises well
 //! above the untrained model's, checkpoints round-trip and resume, a non-finite
 //! loss stops training without touching the parameters, and the edge-guided
-//! regularizers lower what they penalize on 3-view patch batches, as does RegNeRF's depth TV.
+//! regularizers lower what they penalize on 3-view patch batches, as do RegNeRF's depth TV
+//! and the edge-guided planarity term.
 
 use std::path::PathBuf;
 
@@ -301,6 +302,42 @@ fn depth_tv_alone_lowers_it_on_a_fixed_batch() {
     assert!(logged[logged.len() - 1] < 0.96 * logged[0], "the logged term falls too");
     let falls = logged.windows(2).filter(|w| w[1] <= w[0]).count();
     assert!(falls >= 20, "the logged term falls steadily: {falls} of 24 steps");
+}
+
+/// The edge-guided planarity term alone (`lambda_color` on the photometric term,
+/// `lambda` on `L_pl`, no other regularizer), every step on one fixed batch of
+/// 3-view patches and triplets: the logged `L_pl` of each of `iters` steps.
+fn planarity_run(lambda_color: f32, lambda: f32, iters: u64) -> Vec<f32> {
+    let mut config = tiny_config("creases", iters);
+    for s in ["train.batch=patches", "scene.views=3", "optim.schedule.warmup_steps=1", "reg.depth=true", "reg.lambda_depth=0", "reg.planarity_triplets=128"] {
+        config.set(s).unwrap();
+    }
+    config.reg.lambda_planarity = lambda;
+    config.reg.lambda_color = lambda_color;
+    let scene = Scene::load(&config.scene.path, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+    let mut trainer = Trainer::new(test_gpu(false), scene, config).unwrap();
+    let first = trainer.draw_batch().unwrap();
+    assert_eq!((first.triplets.len(), first.triplets.pixel.len()), (128, 384), "the batch carries its triplets");
+    assert!(first.triplets.pixel.iter().filter(|p| p[0] == 1.0).count() > 300, "most triplets are placed");
+    (0..iters)
+        .map(|_| {
+            let s = trainer.step_on(first.clone()).unwrap();
+            assert!(s.loss_planarity.is_finite() && s.lambda_planarity == lambda);
+            assert!((s.loss - (lambda_color * s.loss_color + lambda * s.loss_planarity)).abs() <= 1e-4 * s.loss.max(1e-3));
+            s.loss_planarity
+        })
+        .collect()
+}
+
+#[test]
+fn planarity_alone_lowers_it_on_a_fixed_batch() {
+    let alone = planarity_run(0.0, 1.0, 25);
+    let monitor = planarity_run(1.0, 1e-6, 25);
+    let tail = |v: &[f32]| v[v.len() - 5..].iter().sum::<f32>() / 5.0;
+    eprintln!("L_pl {:.5} -> {:.5} (photometric only: {:.5} -> {:.5})", alone[0], tail(&alone), monitor[0], tail(&monitor));
+    assert!(alone[0] > 0.0, "the term is measured");
+    assert!(tail(&alone) < 0.7 * alone[0], "L_pl does not descend: {alone:?}");
+    assert!(tail(&alone) < 0.7 * tail(&monitor), "the descent comes from the term: {monitor:?}");
 }
 
 /// The MLP backend (a small mip-NeRF network with RegNeRF's optimizer, shortened

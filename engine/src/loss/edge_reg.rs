@@ -118,6 +118,10 @@ pub enum DepthEstimate {
 /// ray's range instead, with a gradient that grows as `1 / opacity`).
 pub const OPACITY_FLOOR: f32 = 0.1;
 
+/// Bounds of the planarity settings: the triplet rays are allocated with the batch.
+pub const MAX_PLANARITY_TRIPLETS: u32 = 1 << 16;
+pub const MAX_PLANARITY_STRIDE: u32 = 1024;
+
 /// The regularizers' settings in a run configuration (`[reg]`).
 ///
 /// Defaults are the paper's (section 4.1): `lambda2 = 0.1`, `tau1 = 1e-4`, `tau2 = 0`,
@@ -161,6 +165,20 @@ pub struct RegConfig {
     pub depth_normal_residual: DepthNormalResidual,
     /// Exponent of `L_dn`'s coherence gate (0: none; [`super::depth_normal`]).
     pub depth_normal_coherence: f32,
+    /// Weight of the edge-guided planarity `L_pl` ([`super::planarity`]) on triplets of
+    /// pixels inside non-edge regions, on the same schedule (0: off). A depth
+    /// regularizer: `depth = false` switches it off with `L_z`.
+    pub lambda_planarity: f32,
+    /// Triplets a step draws for it (3 rays each, appended to the batch with zero
+    /// photometric weight).
+    pub planarity_triplets: u32,
+    /// The largest spacing of a triplet's pixels, in pixels (spacings are uniform in
+    /// `1..=max`; a triplet spans twice its spacing).
+    pub planarity_max_stride: u32,
+    /// Scale `c` of `L_pl`'s robust penalty (0: L1; [`super::planarity`]).
+    pub planarity_scale: f32,
+    /// Exponent of `L_pl`'s coherence gate (0: none; [`super::planarity`]).
+    pub planarity_coherence: f32,
 }
 
 impl Default for RegConfig {
@@ -181,6 +199,11 @@ impl Default for RegConfig {
             lambda_depth_normal: 0.0,
             depth_normal_residual: DepthNormalResidual::Dot,
             depth_normal_coherence: 0.0,
+            lambda_planarity: 0.0,
+            planarity_triplets: 256,
+            planarity_max_stride: 16,
+            planarity_scale: 0.0,
+            planarity_coherence: 0.0,
         }
     }
 }
@@ -200,6 +223,17 @@ impl RegConfig {
         (self.depth && self.lambda_depth > 0.0)
             || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
             || (self.normal && self.lambda_depth_normal > 0.0)
+            || self.planarity_on()
+    }
+
+    /// Whether the planarity term runs (weight above 0 with `L_z`'s switch on).
+    pub fn planarity_on(&self) -> bool {
+        self.depth && self.lambda_planarity > 0.0 && self.planarity_triplets > 0
+    }
+
+    /// Triplets a step's batch carries for the planarity term (0 when it is off).
+    pub fn planarity_triplets_per_step(&self) -> u32 {
+        if self.planarity_on() { self.planarity_triplets } else { 0 }
     }
 
     /// The weights of step `step` (schedule applied), `None` when nothing is active.
@@ -223,8 +257,11 @@ impl RegConfig {
             lambda_depth_normal: if self.normal { ramp * self.lambda_depth_normal } else { 0.0 },
             depth_normal_residual: self.depth_normal_residual,
             depth_normal_coherence: self.depth_normal_coherence,
+            lambda_planarity: if self.planarity_on() { ramp * self.lambda_planarity } else { 0.0 },
+            planarity_scale: self.planarity_scale,
+            planarity_coherence: self.planarity_coherence,
         };
-        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0).then_some(w)
+        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0 || w.lambda_planarity > 0.0).then_some(w)
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -236,6 +273,9 @@ impl RegConfig {
             ("depth_normal_coherence", Some(self.depth_normal_coherence)),
             ("tau_depth", Some(self.tau_depth)),
             ("tau_normal", Some(self.tau_normal)),
+            ("lambda_planarity", Some(self.lambda_planarity)),
+            ("planarity_scale", Some(self.planarity_scale)),
+            ("planarity_coherence", Some(self.planarity_coherence)),
         ];
         for (key, v) in values {
             if let Some(v) = v
@@ -243,6 +283,12 @@ impl RegConfig {
             {
                 return Err(format!("reg.{key} = {v}: weights and thresholds must be finite and >= 0"));
             }
+        }
+        if self.planarity_triplets > MAX_PLANARITY_TRIPLETS {
+            return Err(format!("reg.planarity_triplets = {} must be at most {MAX_PLANARITY_TRIPLETS}", self.planarity_triplets));
+        }
+        if self.planarity_on() && !(1..=MAX_PLANARITY_STRIDE).contains(&self.planarity_max_stride) {
+            return Err(format!("reg.planarity_max_stride = {} must lie in 1..={MAX_PLANARITY_STRIDE} pixels", self.planarity_max_stride));
         }
         Ok(())
     }
@@ -265,6 +311,12 @@ pub struct EdgeRegWeights {
     pub lambda_depth_normal: f32,
     pub depth_normal_residual: DepthNormalResidual,
     pub depth_normal_coherence: f32,
+    /// The planarity term's weight (0: off), on the batch's triplets, and its robust
+    /// scale (0: L1).
+    pub lambda_planarity: f32,
+    pub planarity_scale: f32,
+    /// Its coherence gate's exponent (0: none).
+    pub planarity_coherence: f32,
 }
 
 impl EdgeRegWeights {

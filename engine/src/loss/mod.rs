@@ -3,8 +3,9 @@
 //!
 //! Owns the photometric loss ([`photometric`]) and the edge-guided depth/normal
 //! regularizers of EdgeNeRF ([`edge_reg`]), the edge-guided depth-normal consistency on
-//! the same patches ([`depth_normal`]) and RegNeRF's depth total variation on patches
-//! from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
+//! the same patches ([`depth_normal`]), their long-range planarity on triplets of
+//! pixels inside non-edge regions ([`planarity`]) and RegNeRF's depth total variation
+//! on patches from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
 //! `dL/d RayOutput` per ray into one shared gradient buffer, never touching sampler,
 //! field or renderer state; the photometric loss writes (it runs first), the others add.
 
@@ -12,11 +13,15 @@ pub mod depth_normal;
 pub mod depth_tv;
 pub mod edge_reg;
 pub mod photometric;
+pub mod planarity;
+#[cfg(test)]
+pub(crate) mod test_support;
 
 pub use depth_normal::{DepthNormal, DepthNormalResidual, DepthNormalTerm};
 pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;
+pub use planarity::Planarity;
 
 /// The sum (in `f64`) of the first `n` per-ray or per-patch loss terms a kernel wrote into
 /// `terms` (waits for the GPU).

@@ -399,6 +399,12 @@ impl RunConfig {
         }
         self.edges.validate().map_err(|e| format!("edges: {e}"))?;
         self.reg.validate()?;
+        if self.reg.planarity_on() && self.train.batch != BatchKind::Patches {
+            return Err(format!(
+                "reg.lambda_planarity = {}: the planarity term reads the edge masks of patch batches; set train.batch = \"patches\" or the weight to 0",
+                self.reg.lambda_planarity
+            ));
+        }
         self.regnerf.validate()?;
         self.priors.validate()?;
         self.sampler.validate().map_err(|e| format!("sampler: {e}"))?;
@@ -636,6 +642,8 @@ mod tests {
             ("render.transmittance_threshold=2", "render.transmittance_threshold"),
             ("reg.lambda_depth=-1", "reg.lambda_depth"),
             ("reg.tau_normal=-0.5", "reg.tau_normal"),
+            ("reg.lambda_planarity=-1", "reg.lambda_planarity"),
+            ("reg.planarity_triplets=100000000", "reg.planarity_triplets"),
             ("regnerf.patch_size=100000", "regnerf.patch_size"),
             ("regnerf.n_poses=0", "regnerf.n_poses"),
             ("edges.tau_e=300", "tau_e"),

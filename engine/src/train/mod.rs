@@ -11,14 +11,15 @@
 //! ```text
 //! Trainer: random 2x2 patches of `train.images_per_step` training images (1 by
 //!   default), or random pixels -> rays (host) [+ RegNeRF: 8x8 patches from random poses]
+//!   [+ planarity: triplets of pixels on a line inside non-edge regions]
 //! Trainer: coarse-to-fine levels; occupancy grid update (every
 //!   `sampler.update_interval` steps: field densities at grid query points);
 //!   the step's StepPlan (loss weights, jitter)
-//! Pipeline::forward: random backgrounds, random-pose rays appended, ranges annealed
+//! Pipeline::forward: random backgrounds, random-pose rays and triplets appended, ranges annealed
 //!   -> sampler (occupancy grid + BVH) -> samples -> field forward (+ analytic normals
 //!   when L_n, L_dn or the orientation prior is on) -> composite -> photometric loss
-//!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + depth TV on the random-pose
-//!   patches; rays cut by the sample capacity dropped) -> composite backward (+ the
+//!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + the planarity L_pl on the
+//!   triplets, + depth TV on the random-pose patches; rays cut by the sample capacity dropped) -> composite backward (+ the
 //!   distortion, occlusion and orientation priors)
 //!   -> loss readbacks
 //! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
@@ -26,16 +27,18 @@
 //! Trainer: grad norm / NaN check / clip -> Adam (GPU) -> StepStats
 //! ```
 //! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_dn L_dn +
-//! lambda_tv L_tv` plus the weighted priors (see [`crate::loss::edge_reg`],
-//! [`crate::loss::depth_normal`], [`crate::loss::depth_tv`],
+//! lambda_pl L_pl + lambda_tv L_tv` plus the weighted priors (see
+//! [`crate::loss::edge_reg`], [`crate::loss::depth_normal`],
+//! [`crate::loss::planarity`], [`crate::loss::depth_tv`],
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.
-//! The host waits for the GPU at up to seven small readbacks per step, for logging and
-//! the NaN guard: after the losses, the rays dropped for the capacity, the batch's
-//! squared errors and, when their terms are on, the edge-guided losses, the depth TV
-//! and the priors' per-ray terms; after Adam, the gradient statistics and the sample
-//! count. An occupancy grid update reads its bitfield and density sum as well.
+//! The host waits for the GPU twice per step, for logging and the NaN guard: after the
+//! losses, one batched readback of the rays dropped for the capacity, the sample
+//! counts, the batch's squared errors and, when their terms are on, the edge-guided,
+//! planarity and depth TV losses and the priors' per-ray terms; after Adam, the
+//! gradient statistics. An occupancy grid update reads its bitfield and density sum as
+//! well.
 //!
 //! Invariants:
 //! * A step whose loss or gradients are not finite changes no parameter (the loss is
@@ -163,6 +166,9 @@ pub struct StepStats {
     /// The edge-guided depth-normal consistency (unweighted) and its weight this step.
     pub loss_depth_normal: f32,
     pub lambda_depth_normal: f32,
+    /// The edge-guided planarity (unweighted) and its weight this step.
+    pub loss_planarity: f32,
+    pub lambda_planarity: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -208,17 +214,19 @@ impl StepStats {
             loss_orientation: losses.orientation,
             loss_depth_normal: losses.depth_normal,
             lambda_depth_normal: plan.reg.map_or(0.0, |w| w.lambda_depth_normal),
+            loss_planarity: losses.planarity,
+            lambda_planarity: plan.reg.map_or(0.0, |w| w.lambda_planarity),
         }
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal,loss_planarity,lambda_planarity";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -242,7 +250,9 @@ impl StepStats {
             self.loss_occlusion,
             self.loss_orientation,
             self.loss_depth_normal,
-            self.lambda_depth_normal
+            self.lambda_depth_normal,
+            self.loss_planarity,
+            self.lambda_planarity
         )
     }
 }
@@ -365,7 +375,34 @@ impl Trainer {
     pub fn draw_batch(&mut self) -> Result<rays::PixelBatch, TrainError> {
         let mut batch = self.draw_photometric_batch()?;
         (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
+        batch.triplets = self.draw_triplets()?;
         Ok(batch)
+    }
+
+    /// The planarity term's triplets of this step (empty when it is off).
+    fn draw_triplets(&mut self) -> Result<rays::Triplets, TrainError> {
+        let n = self.pipeline.triplets();
+        if n == 0 {
+            return Ok(rays::Triplets::default());
+        }
+        let (seed, max_stride) = (self.config().train.seed, self.config().reg.planarity_max_stride);
+        self.ensure_edge_masks()?;
+        let masks = self.edge_masks.as_deref().expect("computed above");
+        Ok(rays::random_triplets(&self.scene, masks, n, max_stride, seed, self.step))
+    }
+
+    /// Computes the training views' edge masks at the first call unless given (all
+    /// non-edge when no regularizer reads them).
+    fn ensure_edge_masks(&mut self) -> Result<(), TrainError> {
+        if self.edge_masks.is_none() {
+            self.edge_masks = Some(if Self::needs_edge_masks(&self.model.config, &self.scene) {
+                crate::edges::edge_masks(&self.scene, &self.scene.split.train, &self.model.config.edges)?
+            } else {
+                let (w, h) = self.scene.image_size();
+                vec![EdgeMask::all_non_edge(w, h); self.scene.split.train.len()]
+            });
+        }
+        Ok(())
     }
 
     /// RegNeRF's random-pose patches of this step (empty when its depth TV is off).
@@ -385,16 +422,9 @@ impl Trainer {
         if self.config().train.batch == BatchKind::Pixels {
             return Ok(rays::random_pixels(&self.scene, n, seed, step));
         }
-        if self.edge_masks.is_none() {
-            self.edge_masks = Some(if Self::needs_edge_masks(&self.model.config, &self.scene) {
-                crate::edges::edge_masks(&self.scene, &self.scene.split.train, &self.model.config.edges)?
-            } else {
-                let (w, h) = self.scene.image_size();
-                vec![EdgeMask::all_non_edge(w, h); self.scene.split.train.len()]
-            });
-        }
-        let masks = self.edge_masks.as_deref().expect("computed above");
         let n_patches = self.config().train.patches_per_batch();
+        self.ensure_edge_masks()?;
+        let masks = self.edge_masks.as_deref().expect("computed above");
         let train = &self.config().train;
         let shape = rays::PatchShape { images_per_step: train.images_per_step, stride: train.patch_stride };
         Ok(rays::random_patches(&self.scene, masks, n_patches, n - 4 * n_patches, shape, seed, step))
@@ -408,6 +438,9 @@ impl Trainer {
         let (gpu, step) = (self.gpu.clone(), self.step);
         if self.pipeline.tv_rays() > 0 && batch.tv_rays.is_empty() {
             (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
+        }
+        if self.pipeline.triplets() > 0 && batch.triplets.is_empty() {
+            batch.triplets = self.draw_triplets()?;
         }
         self.pipeline.check_batch(&batch)?;
         self.model.set_levels_for_step(step);
@@ -450,7 +483,7 @@ impl Trainer {
         if !grad.all_finite() {
             return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }
-        let n_all = self.config().train.rays_per_batch + self.pipeline.tv_rays();
+        let n_all = self.pipeline.rays_per_batch();
         Ok(StepStats::new(&plan, &losses, lr, grad.raw_norm, counts, n_all, self.model.occupied_fraction(), sample_capacity))
     }
 

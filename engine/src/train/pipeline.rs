@@ -13,12 +13,12 @@
 //! A batch runs in two calls, so that the caller can check the losses in between:
 //! ```text
 //! Pipeline::forward:
-//!   host: random-pose rays appended; RegNeRF's annealing of every ray's range; rays,
+//!   host: random-pose rays and planarity triplets appended; RegNeRF's annealing of every ray's range; rays,
 //!     targets (and their alpha with random backgrounds) and edge weights to the GPU
 //!   sampler (Model::sample) -> field forward (+ analytic normals when L_n is on)
 //!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
-//!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV (add)
-//!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
+//!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV and the planarity term
+//!     (add) -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
 //!   one readback (one wait): the losses, rays dropped and the sampler's counts -> BatchLosses
 //! Pipeline::backward: the field's gradients zeroed, then the field backward over the
@@ -29,15 +29,17 @@
 //! * Neither call changes a parameter: [`Pipeline::forward`] leaves the field's
 //!   gradients alone too, so a caller that stops after it (a non-finite loss) leaves
 //!   the model as it was; [`Pipeline::backward`] overwrites them with this batch's.
-//! * The random-pose rays follow the photometric rays in one sample batch with zero
-//!   photometric weight, so one forward and one backward pass serve every term.
+//! * The random-pose rays, then the planarity triplets' rays, follow the photometric
+//!   rays in one sample batch with zero photometric weight, so one forward and one
+//!   backward pass serve every term.
 //! * The batch buffers hold `train.rays_per_batch` photometric rays plus the
-//!   random-pose ones; the sample capacity only grows ([`Pipeline::grow_capacity`]).
+//!   random-pose and triplet ones; the sample capacity only grows
+//!   ([`Pipeline::grow_capacity`]).
 
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric};
+use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -93,6 +95,8 @@ pub struct BatchLosses {
     pub orientation: f32,
     /// The edge-guided depth-normal consistency `L_dn`.
     pub depth_normal: f32,
+    /// The edge-guided planarity `L_pl` on the batch's triplets.
+    pub planarity: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
     /// The sampler's counts: samples kept, and samples the rays wanted.
@@ -113,6 +117,7 @@ impl BatchLosses {
             (self.occlusion, "the occlusion prior"),
             (self.orientation, "the orientation penalty"),
             (self.depth_normal, "the depth-normal consistency"),
+            (self.planarity, "the planarity term"),
         ] {
             if !value.is_finite() {
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -122,15 +127,16 @@ impl BatchLosses {
     }
 
     /// The total loss with the weights of `plan`: `lambda1 L_c + lambda2 L_z + lambda3
-    /// L_n + lambda_dn L_dn + lambda_tv L_tv + lambda_dist L_dist + lambda_occ L_occ +
-    /// lambda_ori L_ori`.
+    /// L_n + lambda_dn L_dn + lambda_pl L_pl + lambda_tv L_tv + lambda_dist L_dist +
+    /// lambda_occ L_occ + lambda_ori L_ori`.
     pub fn total(&self, plan: &StepPlan) -> f32 {
-        let (lambda_depth, lambda_normal, lambda_dn) =
-            plan.reg.map_or((0.0, 0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal, w.lambda_depth_normal));
+        let (lambda_depth, lambda_normal, lambda_dn, lambda_pl) =
+            plan.reg.map_or((0.0, 0.0, 0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal, w.lambda_depth_normal, w.lambda_planarity));
         plan.lambda_color * self.color
             + lambda_depth * self.depth
             + lambda_normal * self.normal
             + lambda_dn * self.depth_normal
+            + lambda_pl * self.planarity
             + plan.tv.unwrap_or(0.0) * self.tv
             + self.priors.lambda_distortion * self.distortion
             + self.priors.lambda_occlusion * self.occlusion
@@ -140,9 +146,11 @@ impl BatchLosses {
 
 /// The per-batch buffers, loss kernels and training renderer of a run.
 pub struct Pipeline {
-    /// Photometric rays per batch, and random-pose rays appended after them.
+    /// Photometric rays per batch, random-pose rays appended after them, and the
+    /// planarity triplets after those.
     n: u32,
     n_tv: u32,
+    n_triplets: u32,
     /// Whether the priors are on (their per-ray terms are read back).
     priors_on: bool,
     /// With random backgrounds: each target's alpha (1: none), which the photometric
@@ -162,6 +170,7 @@ pub struct Pipeline {
     edge_reg: EdgeReg,
     depth_normal: DepthNormal,
     depth_tv: DepthTv,
+    planarity: Planarity,
 }
 
 impl Pipeline {
@@ -171,8 +180,9 @@ impl Pipeline {
         let n = config.train.rays_per_batch;
         let r = &config.regnerf;
         let n_tv = r.patches(n) * r.patch_size * r.patch_size;
-        // The random-pose rays get the photometric rays' share of samples.
-        let n_all = n + n_tv;
+        let n_triplets = if config.train.batch == BatchKind::Patches { config.reg.planarity_triplets_per_step() } else { 0 };
+        // The random-pose and triplet rays get the photometric rays' share of samples.
+        let n_all = n + n_tv + 3 * n_triplets;
         let capacity = (config.train.max_samples as u64 * n_all as u64 / n.max(1) as u64).min(u32::MAX as u64) as u32;
         let random_background = config.train.random_background && scene.train_views().any(|v| v.alpha.is_some());
         let mut render_config: RenderConfig = *model.render_config();
@@ -188,6 +198,7 @@ impl Pipeline {
         Ok(Pipeline {
             n,
             n_tv,
+            n_triplets,
             priors_on: config.priors.active(),
             random_background,
             renderer,
@@ -201,12 +212,23 @@ impl Pipeline {
             edge_reg: EdgeReg::new(gpu, n / 4)?,
             depth_normal: DepthNormal::new(gpu, n / 4)?,
             depth_tv: DepthTv::new(gpu, n_tv)?,
+            planarity: Planarity::new(gpu, n_triplets)?,
         })
     }
 
     /// Random-pose rays a batch carries after its photometric rays (0: none).
     pub fn tv_rays(&self) -> u32 {
         self.n_tv
+    }
+
+    /// Planarity triplets a batch carries after its random-pose rays (0: none).
+    pub fn triplets(&self) -> u32 {
+        self.n_triplets
+    }
+
+    /// Rays a batch renders: photometric, random-pose and triplet rays.
+    pub fn rays_per_batch(&self) -> u32 {
+        self.n + self.n_tv + 3 * self.n_triplets
     }
 
     /// Samples a batch holds before rays are cut.
@@ -223,6 +245,10 @@ impl Pipeline {
         }
         if self.n_tv > 0 && (batch.tv_rays.len() != self.n_tv as usize || batch.tv_z_scale.len() != self.n_tv as usize) {
             return error(format!("{} random-pose patch rays given, the regnerf settings make {}", batch.tv_rays.len(), self.n_tv));
+        }
+        let t = &batch.triplets;
+        if self.n_triplets > 0 && (t.rays.len() != 3 * self.n_triplets as usize || t.pixel.len() != t.rays.len()) {
+            return error(format!("{} planarity triplet rays given, reg.planarity_triplets makes {}", t.rays.len(), 3 * self.n_triplets));
         }
         Ok(())
     }
@@ -299,9 +325,14 @@ impl Pipeline {
         let (mut rays, mut targets): (Vec<GpuRay>, Vec<[f32; 4]>) = (batch.rays, batch.targets);
         if self.n_tv > 0 {
             rays.extend_from_slice(&batch.tv_rays);
-            targets.resize(rays.len(), [0.0; 4]);
             self.depth_tv.z_scale.write(gpu, &batch.tv_z_scale);
         }
+        if self.n_triplets > 0 {
+            rays.extend_from_slice(&batch.triplets.rays);
+            self.planarity.pixel.write(gpu, &batch.triplets.pixel);
+        }
+        // Zero photometric weight for every ray after the photometric ones.
+        targets.resize(rays.len(), [0.0; 4]);
         if let Some(anneal) = config.regnerf.anneal_for(scene) {
             anneal.apply(&mut rays, plan.step);
         }
@@ -313,6 +344,7 @@ impl Pipeline {
     /// `d_rays`, composite backward into the per-sample field gradients.
     fn record_render_and_losses(&self, gpu: &Gpu, model: &Model, scene: &Scene, plan: &StepPlan) -> Result<(), TrainError> {
         let (bufs, n, n_tv) = (&self.bufs, self.n, self.n_tv);
+        let n_all = self.rays_per_batch();
         let mut enc = gpu.encoder();
         // Rays cut by the sample capacity render without their far samples: out of
         // every loss (their weight and their patch's edge weight to 0).
@@ -327,12 +359,16 @@ impl Pipeline {
             alpha,
             loaded_over: *loaded_over,
         });
-        self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n + n_tv, n as f32, plan.lambda_color);
+        self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
                 self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
+            }
+            if w.lambda_planarity > 0.0 && self.n_triplets > 0 {
+                let ndc = scene.ndc.is_some();
+                self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, w.lambda_planarity, w.planarity_scale, w.planarity_coherence, ndc);
             }
         }
         if let Some(lambda) = plan.tv {
@@ -360,6 +396,8 @@ impl Pipeline {
         let reg = plan.reg.is_some().then(|| batch.add(&self.edge_reg.patch_loss, quarter));
         let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
         let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
+        let pl_on = plan.reg.is_some_and(|w| w.lambda_planarity > 0.0) && self.n_triplets > 0;
+        let planarity = pl_on.then(|| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
         let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
         let back = batch.read(gpu)?;
         let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);
@@ -376,6 +414,7 @@ impl Pipeline {
             occlusion: p.occlusion,
             orientation: p.orientation,
             depth_normal: depth_normal.map_or(0.0, |d| sum_terms(&back.get(&d))),
+            planarity: planarity.map_or(0.0, |p| sum_terms(&back.get(&p))),
             rays_dropped,
             samples: [counts[0], counts[1]],
             priors,

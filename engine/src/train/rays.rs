@@ -4,7 +4,9 @@
 //! Two kinds of batches: single pixels uniform over all training views
 //! ([`random_pixels`]), and 2x2 patches of a few views with their edge masks
 //! ([`random_patches`], what the edge-guided regularizers read), optionally followed by
-//! single pixels that only the photometric loss sees (edge weight 0).
+//! single pixels that only the photometric loss sees (edge weight 0). Beside either, the
+//! triplets of pixels on a line inside non-edge regions that the planarity term reads
+//! ([`random_triplets`]).
 //!
 //! Invariants: a ray's `[t_min, t_max]` is the scene's near/far range clipped to the
 //! scene AABB (world-space scenes) or `[0, 1]` (NDC scenes); a ray that misses the
@@ -60,6 +62,29 @@ pub struct PixelBatch {
     /// after the photometric rays; empty: the trainer draws them for the step.
     pub tv_rays: Vec<GpuRay>,
     pub tv_z_scale: Vec<f32>,
+    /// The planarity term's triplets, trained after the random-pose rays; empty: the
+    /// trainer draws them for the step.
+    pub triplets: Triplets,
+}
+
+/// Triplets of pixels on a line for the planarity term ([`crate::loss::planarity`]):
+/// rays `3k .. 3k + 2` are triplet `k`.
+#[derive(Clone, Default)]
+pub struct Triplets {
+    pub rays: Vec<GpuRay>,
+    /// Per ray `(w, z_scale)`: the triplet's weight (1; 0 where no triplet could be
+    /// placed) and the ray's `z_scale` ([`Ray::z_scale`]).
+    pub pixel: Vec<[f32; 2]>,
+}
+
+impl Triplets {
+    pub fn len(&self) -> usize {
+        self.rays.len() / 3
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rays.is_empty()
+    }
 }
 
 impl PixelBatch {
@@ -190,9 +215,89 @@ pub fn random_patches(
     batch
 }
 
+/// The directions of a triplet: rows, columns and both diagonals, either way.
+const TRIPLET_DIRECTIONS: [(i32, i32); 8] = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1)];
+
+/// Mixed into the seed of the triplet draws, so that switching the planarity term on
+/// leaves the step's photometric batch as it was.
+const TRIPLET_SALT: u64 = 0x7121_91E7_5EED_0001;
+
+/// Draws `n` triplets for `step`: each from a training view chosen at random, pixels
+/// `p0, p0 + s u, p0 + 2 s u` for a direction `u` along a row, column or diagonal
+/// ([`TRIPLET_DIRECTIONS`]) and a spacing `s` uniform in `1..=max_stride`, accepted
+/// when every pixel of the segment from `p0` to `p0 + 2 s u` lies inside the image, is
+/// non-edge (`masks[i]`, the edge mask of `scene.split.train[i]`), inside the view's
+/// training mask and, where the image has alpha, foreground (alpha at least 0.5).
+/// Up to [`MASK_DRAWS`] draws per triplet; a triplet that finds none is the last draw's
+/// first pixel three times with weight 0. Long segments cross edges more often, so
+/// the accepted spacings lean short in busy images. A pure function of `seed` and
+/// `step`, independent of the other draws of the step.
+pub fn random_triplets(scene: &Scene, masks: &[EdgeMask], n: u32, max_stride: u32, seed: u64, step: u64) -> Triplets {
+    let mut rng = step_rng(seed ^ TRIPLET_SALT, step);
+    let train = &scene.split.train;
+    assert_eq!(masks.len(), train.len(), "one edge mask per training view");
+    let (w, h) = scene.image_size();
+    let max_stride = max_stride.max(1);
+    let mut out = Triplets::default();
+    for _ in 0..n {
+        let i = rng.below(train.len() as u64) as usize;
+        let view = train[i];
+        let alpha = scene.views[view].alpha.as_deref();
+        let usable = |x: u32, y: u32| {
+            masks[i].at(x, y) > 0.0 && drawable(scene, view, x, y) && alpha.is_none_or(|a| a[(y * w + x) as usize] >= 0.5)
+        };
+        let mut found = None;
+        let mut last = (0, 0);
+        for _ in 0..MASK_DRAWS {
+            let (x0, y0) = (rng.below(w as u64) as i64, rng.below(h as u64) as i64);
+            let (dx, dy) = TRIPLET_DIRECTIONS[rng.below(TRIPLET_DIRECTIONS.len() as u64) as usize];
+            let stride = 1 + rng.below(max_stride as u64) as i64;
+            last = (x0 as u32, y0 as u32);
+            let (x2, y2) = (x0 + 2 * stride * dx as i64, y0 + 2 * stride * dy as i64);
+            if !(0..w as i64).contains(&x2) || !(0..h as i64).contains(&y2) {
+                continue;
+            }
+            let on_segment = |k: i64| ((x0 + k * dx as i64) as u32, (y0 + k * dy as i64) as u32);
+            if (0..=2 * stride).all(|k| {
+                let (x, y) = on_segment(k);
+                usable(x, y)
+            }) {
+                found = Some([on_segment(0), on_segment(stride), on_segment(2 * stride)]);
+                break;
+            }
+        }
+        let (pixels, weight) = match found {
+            Some(p) => (p, 1.0),
+            None => ([last; 3], 0.0),
+        };
+        for (x, y) in pixels {
+            let ray = scene.ray(view, x, y);
+            out.rays.push(to_gpu_ray(scene, &ray));
+            out.pixel.push([weight, ray.z_scale]);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The committed `creases` scene with its 3 training views.
+    fn three_view_creases() -> Scene {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
+        Scene::load(&dir, &crate::data::LoadOptions { views: Some(3), ..Default::default() }).unwrap()
+    }
+
+    /// The pixel of `view` whose ray is `r`, if any.
+    fn pixel_in_view(scene: &Scene, r: &GpuRay, view: usize) -> Option<(u32, u32)> {
+        let (w, h) = scene.image_size();
+        let (o, d) = (glam::Vec3::from(r.origin), glam::Vec3::from(r.dir));
+        (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).find(|&(x, y)| {
+            let q = to_gpu_ray(scene, &scene.ray(view, x, y));
+            glam::Vec3::from(q.origin) == o && glam::Vec3::from(q.dir) == d
+        })
+    }
 
     #[test]
     fn slab_test_hits_and_misses() {
@@ -206,9 +311,7 @@ mod tests {
 
     #[test]
     fn batches_draw_only_pixels_inside_the_training_mask() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
-        let opts = crate::data::LoadOptions { views: Some(3), ..Default::default() };
-        let mut scene = Scene::load(&dir, &opts).unwrap();
+        let mut scene = three_view_creases();
         let (w, h) = scene.image_size();
         // Training may only use the left third of each view.
         let allowed = |x: u32| x < w / 3;
@@ -250,9 +353,7 @@ mod tests {
 
     #[test]
     fn strided_patches_span_their_stride_and_take_the_edge_weight_of_the_span() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
-        let opts = crate::data::LoadOptions { views: Some(3), ..Default::default() };
-        let scene = Scene::load(&dir, &opts).unwrap();
+        let scene = three_view_creases();
         let (w, h) = scene.image_size();
         // Edge columns at every x divisible by 10 in every view: a patch straddling one
         // at stride 4 mostly has none of its four pixels on it.
@@ -265,13 +366,7 @@ mod tests {
         let masks = vec![mask; scene.split.train.len()];
         let stride = 4;
         let b = random_patches(&scene, &masks, 400, 0, PatchShape { images_per_step: 3, stride }, 11, 5);
-        let pixel = |r: &GpuRay, view: usize| {
-            let (o, d) = (glam::Vec3::from(r.origin), glam::Vec3::from(r.dir));
-            (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).find(|&(x, y)| {
-                let q = to_gpu_ray(&scene, &scene.ray(view, x, y));
-                glam::Vec3::from(q.origin) == o && glam::Vec3::from(q.dir) == d
-            })
-        };
+        let pixel = |r: &GpuRay, view: usize| pixel_in_view(&scene, r, view);
         let (mut straddling, mut clear, mut pixels_on_edges) = (0, 0, 0);
         for (m, patch) in b.rays.chunks(4).enumerate().take(40) {
             let view = scene.split.train.iter().copied().find(|&v| pixel(&patch[0], v).is_some()).expect("a training view");
@@ -290,6 +385,49 @@ mod tests {
             }
         }
         assert!(straddling > pixels_on_edges && clear > 0, "{straddling} straddling ({pixels_on_edges} with a pixel on the edge), {clear} clear");
+    }
+
+    #[test]
+    fn triplets_lie_on_a_line_inside_one_non_edge_region() {
+        let scene = three_view_creases();
+        let (w, h) = scene.image_size();
+        // Edge rows at every y divisible by 12: a triplet may not straddle one.
+        let mut mask = EdgeMask::all_non_edge(w, h);
+        for y in (0..h).step_by(12) {
+            for x in 0..w {
+                mask.non_edge[(y * w + x) as usize] = 0;
+            }
+        }
+        let masks = vec![mask; scene.split.train.len()];
+        let max_stride = 5;
+        let t = random_triplets(&scene, &masks, 300, max_stride, 3, 9);
+        assert_eq!((t.len(), t.pixel.len()), (300, 900));
+        let pixel = |r: &GpuRay| scene.split.train.iter().find_map(|&view| pixel_in_view(&scene, r, view));
+        let (mut placed, mut vertical, mut long) = (0, 0, 0);
+        for (k, rays) in t.rays.chunks(3).enumerate().take(60) {
+            let e = &t.pixel[3 * k..3 * k + 3];
+            assert!(e.iter().all(|p| p[0] == e[0][0] && p[1] > 0.0), "one weight per triplet, z_scale set");
+            if e[0][0] == 0.0 {
+                continue;
+            }
+            placed += 1;
+            let p: Vec<(i64, i64)> = rays.iter().map(|r| pixel(r).map(|(x, y)| (x as i64, y as i64)).expect("a training pixel")).collect();
+            let (dx, dy) = (p[1].0 - p[0].0, p[1].1 - p[0].1);
+            assert_eq!((p[2].0 - p[1].0, p[2].1 - p[1].1), (dx, dy), "equally spaced on a line: {p:?}");
+            let s = dx.abs().max(dy.abs());
+            assert!((1..=max_stride as i64).contains(&s) && (dx.abs() == s || dx == 0) && (dy.abs() == s || dy == 0), "{p:?}");
+            let (y0, y2) = (p[0].1.min(p[2].1), p[0].1.max(p[2].1));
+            assert!(!(y0..=y2).any(|y| y % 12 == 0), "the segment crosses no edge row: {p:?}");
+            vertical += usize::from(dy != 0);
+            long += usize::from(s >= 3);
+        }
+        assert!(placed > 50 && vertical > 10 && long > 10, "{placed} placed, {vertical} not horizontal, {long} spaced 3 or more");
+        // A pure function of seed and step.
+        let again = random_triplets(&scene, &masks, 300, max_stride, 3, 9);
+        assert_eq!(again.pixel, t.pixel);
+        // Where every pixel is an edge, nothing is placed.
+        let edges: Vec<EdgeMask> = masks.iter().map(|m| EdgeMask { non_edge: vec![0; m.non_edge.len()], ..m.clone() }).collect();
+        assert!(random_triplets(&scene, &edges, 20, 4, 3, 9).pixel.iter().all(|p| p[0] == 0.0));
     }
 
     #[test]

@@ -64,16 +64,8 @@ fn depth_tv_kernel_matches_reference() {
         let (want, grads) = loss(&rays, ps, &weights(&rays, acc_weight as f64));
         assert!((got - want).abs() <= 1e-5 * want.max(1e-3), "ps {ps}: loss {got} vs {want}");
         let d = d.read(&gpu).unwrap();
-        assert_eq!(&d[..offset], &prior[..offset]);
-        let scale = grads.iter().fold(0.0f64, |m, g| m.max(g.0.abs()).max(g.1.abs())) * lambda as f64;
-        for (k, (gd, ga)) in grads.iter().enumerate() {
-            let (got, p) = (&d[offset + k], &prior[offset + k]);
-            let want_d = p.depth as f64 + lambda as f64 * gd;
-            let want_a = p.opacity as f64 + lambda as f64 * ga;
-            assert!((got.depth as f64 - want_d).abs() < 1e-5 * scale.max(1.0), "ps {ps} ray {k}: d depth {} vs {want_d}", got.depth);
-            assert!((got.opacity as f64 - want_a).abs() < 1e-5 * scale.max(1.0), "ps {ps} ray {k}: d opacity {} vs {want_a}", got.opacity);
-            assert_eq!(got.rgb, p.rgb, "colour gradients untouched");
-        }
+        let what = format!("ps {ps}");
+        crate::loss::test_support::assert_added_depth_opacity_grads(&d, &prior, offset, &grads, lambda as f64, (1e-5, 1.0), &what);
         assert_eq!((grads[3], grads[10]), ((0.0, 0.0), (0.0, 0.0)), "clamped rays get no gradient");
     }
 }
