@@ -7,12 +7,16 @@
 //! pixels see, but a surface that is wrong over tens of pixels is smooth at that scale
 //! and pays nothing. With three views that is what a textureless region becomes: the
 //! floor of `smooth` is rendered 0.15-0.3 scene units in front of the true floor in the
-//! training views themselves (about 5 % of the depth; 0.02-0.06 with all 24 views),
+//! training views themselves (about 5 % of the depth; 0.03-0.07 with all 24 views),
 //! pinned where shadows and object contacts give the photometric loss something to
 //! match and lifted toward each camera in between; its normals lean toward the camera
 //! that looks at it. Colour alone cannot move it: any height of a uniform grey surface
 //! renders the same grey. A term that prefers planes over tens of pixels carries the
 //! pinned depths across the region, and stops where the edge map says a region ends.
+//! Measured (README, "Planarity: textureless floors in three views"): it flattens the
+//! floor and lowers the object scenes' non-edge normal error by 2-4 degrees, but does
+//! not lower the floor, and costs the deep forward-facing scenes, whose fog it
+//! flattens into sheets, 0.4-3.7 dB: off by default.
 //!
 //! # The loss
 //! A launch covers `T` triplets; triplet `k` is rays `offset + 3k .. offset + 3k + 2`,
@@ -49,11 +53,12 @@
 //! `n_j` is the ray's rendered (unnormalised) normal: near 1 where the ray's samples
 //! agree on one surface, small in fog whose normals cancel, held constant in the
 //! backward pass. It is `L_dn`'s coherence gate ([`super::depth_normal`]): the term
-//! waits until a surface has formed, so fog is not flattened into sheets.
+//! waits until a surface has formed (meant to spare fog; measured, it does not spare
+//! `occlusion`'s).
 //!
 //! # Gradients (added to `dL/d RayOutput`)
-//! With `g = w rho'(r) / T` (`rho' = sign(r)`, or `2 r c^3 / (r^2 + c^2)^2`): world `dr/dz = (-z1/z0^2, 1/z0 + 1/z2, -z1/z2^2)`, NDC
-//! `(1, -2, 1)`; then as `L_z`'s given termination: `d depth = lambda g dr/dz z_scale /
+//! With `g = w rho'(r) / T` (`rho' = sign(r)`, or `2 r c^3 / (r^2 + c^2)^2`): world
+//! `dr/dz = (-z1/z0^2, 1/z0 + 1/z2, -z1/z2^2)`, NDC `(1, -2, 1)`; then as `L_z`'s given termination: `d depth = lambda g dr/dz z_scale /
 //! o` and `d opacity = -lambda g dr/dz z / o`, `o = max(opacity, OPACITY_FLOOR)` (0
 //! below the floor).
 //!
