@@ -64,12 +64,12 @@ fn z_of(local: u32) -> f32 {
     return pixel[local].y * out.depth / max(out.opacity, params.opacity_floor);
 }
 
-// Adds dL/dz of triplet ray `local` to its depth and opacity gradients.
-fn add_grad(local: u32, dl_dz: f32) {
+// Adds dL/dz of triplet ray `local`, whose depth is `z` (z_of), to its depth and
+// opacity gradients.
+fn add_grad(local: u32, dl_dz: f32, z: f32) {
     let g = params.offset + local;
     let out = rays[g];
     let o = max(out.opacity, params.opacity_floor);
-    let z = pixel[local].y * out.depth / o;
     var d = d_rays[g];
     d.depth += dl_dz * pixel[local].y / o;
     if (out.opacity > params.opacity_floor) {
@@ -120,7 +120,7 @@ fn planarity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
         return;
     }
     let g = params.lambda * norm * w * p.y;
-    add_grad(base, g * c.x);
-    add_grad(base + 1u, g * c.y);
-    add_grad(base + 2u, g * c.z);
+    add_grad(base, g * c.x, z0);
+    add_grad(base + 1u, g * c.y, z1);
+    add_grad(base + 2u, g * c.z, z2);
 }

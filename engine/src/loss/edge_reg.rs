@@ -69,6 +69,7 @@
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
 use super::depth_normal::{DepthNormalResidual, DepthNormalTerm};
+use super::planarity::PlanarityTerm;
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/edge_reg.wgsl",
@@ -327,6 +328,15 @@ impl EdgeRegWeights {
             estimate: self.depth_estimate,
             residual: self.depth_normal_residual,
             coherence_power: self.depth_normal_coherence,
+        })
+    }
+
+    /// The planarity term's launch settings, `None` when its weight is 0.
+    pub fn planarity_term(&self) -> Option<PlanarityTerm> {
+        (self.lambda_planarity > 0.0).then_some(PlanarityTerm {
+            lambda: self.lambda_planarity,
+            scale: self.planarity_scale,
+            coherence_power: self.planarity_coherence,
         })
     }
 }

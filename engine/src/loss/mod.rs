@@ -21,7 +21,7 @@ pub use depth_normal::{DepthNormal, DepthNormalResidual, DepthNormalTerm};
 pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;
-pub use planarity::Planarity;
+pub use planarity::{Planarity, PlanarityTerm};
 
 /// The sum (in `f64`) of the first `n` per-ray or per-patch loss terms a kernel wrote into
 /// `terms` (waits for the GPU).

@@ -91,6 +91,16 @@ struct Params {
     coherence_power: f32,
 }
 
+/// One launch's settings of `L_pl` (the trainer applies the schedule to `lambda`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlanarityTerm {
+    pub lambda: f32,
+    /// `c` of the robust `rho` (0: L1).
+    pub scale: f32,
+    /// The coherence gate's exponent `p` (0: no gate).
+    pub coherence_power: f32,
+}
+
 /// The planarity kernel, its per-ray inputs and per-triplet losses.
 pub struct Planarity {
     kernel: std::sync::Arc<crate::gpu::Kernel>,
@@ -111,10 +121,9 @@ impl Planarity {
     }
 
     /// Records the loss of the `n_triplets` triplets in `outs[offset .. offset + 3
-    /// n_triplets]` (with [`Planarity::pixel`] filled), adding `lambda` times its
+    /// n_triplets]` (with [`Planarity::pixel`] filled), adding `term.lambda` times its
     /// gradient into `d_rays`. `ndc`: the rays are in NDC (the residual of the module
-    /// doc's second line). `scale`: `c` of the robust `rho` (0: L1);
-    /// `coherence_power`: the gate's exponent (0: none).
+    /// doc's second line).
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -123,9 +132,7 @@ impl Planarity {
         d_rays: &GpuBuffer<RayOutput>,
         offset: u32,
         n_triplets: u32,
-        lambda: f32,
-        scale: f32,
-        coherence_power: f32,
+        term: &PlanarityTerm,
         ndc: bool,
     ) {
         let end = (offset + 3 * n_triplets) as usize;
@@ -136,10 +143,10 @@ impl Planarity {
             offset,
             ndc: ndc as u32,
             _pad0: 0,
-            lambda,
+            lambda: term.lambda,
             opacity_floor: OPACITY_FLOOR,
-            scale,
-            coherence_power,
+            scale: term.scale,
+            coherence_power: term.coherence_power,
         });
         enc.dispatch_threads(
             &self.kernel,
@@ -291,7 +298,8 @@ mod tests {
             let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
             let lambda = 0.7f32;
             let mut enc = gpu.encoder();
-            pl.record(&mut enc, &outs_buf, &d, offset as u32, n_triplets as u32, lambda, c, p, ndc);
+            let term = PlanarityTerm { lambda, scale: c, coherence_power: p };
+            pl.record(&mut enc, &outs_buf, &d, offset as u32, n_triplets as u32, &term, ndc);
             enc.submit();
             let got = pl.loss(&gpu, n_triplets as u32).unwrap() as f64;
             // The robust slope is proportional to r near 0, and r is a difference of

@@ -15,12 +15,14 @@
 //! Trainer: coarse-to-fine levels; occupancy grid update (every
 //!   `sampler.update_interval` steps: field densities at grid query points);
 //!   the step's StepPlan (loss weights, jitter)
-//! Pipeline::forward: random backgrounds, random-pose rays and triplets appended, ranges annealed
+//! Pipeline::forward: random backgrounds, random-pose rays and triplets appended,
+//!   ranges annealed
 //!   -> sampler (occupancy grid + BVH) -> samples -> field forward (+ analytic normals
 //!   when L_n, L_dn or the orientation prior is on) -> composite -> photometric loss
 //!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + the planarity L_pl on the
-//!   triplets, + depth TV on the random-pose patches; rays cut by the sample capacity dropped) -> composite backward (+ the
-//!   distortion, occlusion and orientation priors)
+//!   triplets, + depth TV on the random-pose patches; rays cut by the sample capacity
+//!   dropped) -> composite backward (+ the distortion, occlusion and orientation
+//!   priors)
 //!   -> loss readbacks
 //! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
 //! Pipeline::backward: zero grads -> field backward (second order through the normals)

@@ -13,12 +13,14 @@
 //! A batch runs in two calls, so that the caller can check the losses in between:
 //! ```text
 //! Pipeline::forward:
-//!   host: random-pose rays and planarity triplets appended; RegNeRF's annealing of every ray's range; rays,
-//!     targets (and their alpha with random backgrounds) and edge weights to the GPU
+//!   host: random-pose rays and planarity triplets appended; RegNeRF's annealing of
+//!     every ray's range; rays, targets (and their alpha with random backgrounds) and
+//!     edge weights to the GPU
 //!   sampler (Model::sample) -> field forward (+ analytic normals when L_n is on)
 //!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
-//!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput) -> edge-guided L_z, L_n and RegNeRF's depth TV and the planarity term
-//!     (add) -> composite backward (+ the priors' gradients) -> dL/d field outputs
+//!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput)
+//!     -> edge-guided L_z, L_n, the planarity term and RegNeRF's depth TV (add)
+//!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
 //!   one readback (one wait): the losses, rays dropped and the sampler's counts -> BatchLosses
 //! Pipeline::backward: the field's gradients zeroed, then the field backward over the
@@ -39,7 +41,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity};
+use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -366,10 +368,9 @@ impl Pipeline {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
                 self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
             }
-            if w.lambda_planarity > 0.0 && self.n_triplets > 0 {
-                let ndc = scene.ndc.is_some();
-                self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, w.lambda_planarity, w.planarity_scale, w.planarity_coherence, ndc);
-            }
+        }
+        if let Some(term) = self.planarity_term(plan) {
+            self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, &term, scene.ndc.is_some());
         }
         if let Some(lambda) = plan.tv {
             let r = &model.config.regnerf;
@@ -381,6 +382,12 @@ impl Pipeline {
         compaction.record(gpu, &mut enc, &bufs.batch, &self.field_grads, plan.normals(), live)?;
         enc.submit();
         Ok(())
+    }
+
+    /// The planarity term's settings at `plan`'s step, `None` when it does not run (off,
+    /// or the batch carries no triplets).
+    fn planarity_term(&self, plan: &StepPlan) -> Option<PlanarityTerm> {
+        plan.reg.and_then(|w| w.planarity_term()).filter(|_| self.n_triplets > 0)
     }
 
     /// The losses of the last batch and the sampler's counts, read back together (one
@@ -396,8 +403,7 @@ impl Pipeline {
         let reg = plan.reg.is_some().then(|| batch.add(&self.edge_reg.patch_loss, quarter));
         let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
         let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
-        let pl_on = plan.reg.is_some_and(|w| w.lambda_planarity > 0.0) && self.n_triplets > 0;
-        let planarity = pl_on.then(|| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
+        let planarity = self.planarity_term(plan).map(|_| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
         let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
         let back = batch.read(gpu)?;
         let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);

@@ -244,7 +244,7 @@ pub fn random_triplets(scene: &Scene, masks: &[EdgeMask], n: u32, max_stride: u3
         let view = train[i];
         let alpha = scene.views[view].alpha.as_deref();
         let usable = |x: u32, y: u32| {
-            masks[i].at(x, y) > 0.0 && drawable(scene, view, x, y) && alpha.is_none_or(|a| a[(y * w + x) as usize] >= 0.5)
+            !masks[i].is_edge(x, y) && drawable(scene, view, x, y) && alpha.is_none_or(|a| a[(y * w + x) as usize] >= 0.5)
         };
         let mut found = None;
         let mut last = (0, 0);
