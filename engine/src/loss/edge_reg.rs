@@ -180,6 +180,10 @@ pub struct RegConfig {
     pub planarity_scale: f32,
     /// Exponent of `L_pl`'s coherence gate (0: none; [`super::planarity`]).
     pub planarity_coherence: f32,
+    /// Largest colour variation (per channel, max - min, in [0, 1]) a triplet's segment
+    /// may have in its training image (0: any): `L_pl` only where the colour is flat
+    /// ([`crate::train::rays::random_triplets`]).
+    pub planarity_color_range: f32,
 }
 
 impl Default for RegConfig {
@@ -205,6 +209,7 @@ impl Default for RegConfig {
             planarity_max_stride: 16,
             planarity_scale: 0.0,
             planarity_coherence: 0.0,
+            planarity_color_range: 0.0,
         }
     }
 }
@@ -277,6 +282,7 @@ impl RegConfig {
             ("lambda_planarity", Some(self.lambda_planarity)),
             ("planarity_scale", Some(self.planarity_scale)),
             ("planarity_coherence", Some(self.planarity_coherence)),
+            ("planarity_color_range", Some(self.planarity_color_range)),
         ];
         for (key, v) in values {
             if let Some(v) = v

@@ -387,10 +387,12 @@ impl Trainer {
         if n == 0 {
             return Ok(rays::Triplets::default());
         }
-        let (seed, max_stride) = (self.config().train.seed, self.config().reg.planarity_max_stride);
+        let reg = &self.config().reg;
+        let draw = rays::TripletDraw { n, max_stride: reg.planarity_max_stride, color_range: reg.planarity_color_range };
+        let seed = self.config().train.seed;
         self.ensure_edge_masks()?;
         let masks = self.edge_masks.as_deref().expect("computed above");
-        Ok(rays::random_triplets(&self.scene, masks, n, max_stride, seed, self.step))
+        Ok(rays::random_triplets(&self.scene, masks, draw, seed, self.step))
     }
 
     /// Computes the training views' edge masks at the first call unless given (all

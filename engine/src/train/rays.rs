@@ -215,6 +215,15 @@ pub fn random_patches(
     batch
 }
 
+/// What [`random_triplets`] draws: `n` triplets of spacing up to `max_stride` pixels,
+/// on segments whose colour varies by at most `color_range` per channel (0: any).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TripletDraw {
+    pub n: u32,
+    pub max_stride: u32,
+    pub color_range: f32,
+}
+
 /// The directions of a triplet: rows, columns and both diagonals, either way.
 const TRIPLET_DIRECTIONS: [(i32, i32); 8] = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1)];
 
@@ -230,9 +239,13 @@ const TRIPLET_SALT: u64 = 0x7121_91E7_5EED_0001;
 /// training mask and, where the image has alpha, foreground (alpha at least 0.5).
 /// Up to [`MASK_DRAWS`] draws per triplet; a triplet that finds none is the last draw's
 /// first pixel three times with weight 0. Long segments cross edges more often, so
-/// the accepted spacings lean short in busy images. A pure function of `seed` and
-/// `step`, independent of the other draws of the step.
-pub fn random_triplets(scene: &Scene, masks: &[EdgeMask], n: u32, max_stride: u32, seed: u64, step: u64) -> Triplets {
+/// the accepted spacings lean short in busy images. With `color_range > 0` a segment
+/// is also rejected when any channel of the image varies along it by more than that
+/// (max - min): the term then acts only where the colour is flat, i.e. where the
+/// photometric loss says nothing about depth, and not on shaded curved surfaces.
+/// A pure function of `seed` and `step`, independent of the other draws of the step.
+pub fn random_triplets(scene: &Scene, masks: &[EdgeMask], draw: TripletDraw, seed: u64, step: u64) -> Triplets {
+    let TripletDraw { n, max_stride, color_range } = draw;
     let mut rng = step_rng(seed ^ TRIPLET_SALT, step);
     let train = &scene.split.train;
     assert_eq!(masks.len(), train.len(), "one edge mask per training view");
@@ -258,10 +271,24 @@ pub fn random_triplets(scene: &Scene, masks: &[EdgeMask], n: u32, max_stride: u3
                 continue;
             }
             let on_segment = |k: i64| ((x0 + k * dx as i64) as u32, (y0 + k * dy as i64) as u32);
+            let flat = || {
+                let image = &scene.views[view].image;
+                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                for k in 0..=2 * stride {
+                    let (x, y) = on_segment(k);
+                    let c = image.get(x, y);
+                    for ch in 0..3 {
+                        lo[ch] = lo[ch].min(c[ch]);
+                        hi[ch] = hi[ch].max(c[ch]);
+                    }
+                }
+                (0..3).all(|ch| hi[ch] - lo[ch] <= color_range)
+            };
             if (0..=2 * stride).all(|k| {
                 let (x, y) = on_segment(k);
                 usable(x, y)
-            }) {
+            }) && (color_range <= 0.0 || flat())
+            {
                 found = Some([on_segment(0), on_segment(stride), on_segment(2 * stride)]);
                 break;
             }
@@ -400,7 +427,7 @@ mod tests {
         }
         let masks = vec![mask; scene.split.train.len()];
         let max_stride = 5;
-        let t = random_triplets(&scene, &masks, 300, max_stride, 3, 9);
+        let t = random_triplets(&scene, &masks, TripletDraw { n: 300, max_stride, color_range: 0.0 }, 3, 9);
         assert_eq!((t.len(), t.pixel.len()), (300, 900));
         let pixel = |r: &GpuRay| scene.split.train.iter().find_map(|&view| pixel_in_view(&scene, r, view));
         let (mut placed, mut vertical, mut long) = (0, 0, 0);
@@ -423,11 +450,47 @@ mod tests {
         }
         assert!(placed > 50 && vertical > 10 && long > 10, "{placed} placed, {vertical} not horizontal, {long} spaced 3 or more");
         // A pure function of seed and step.
-        let again = random_triplets(&scene, &masks, 300, max_stride, 3, 9);
+        let again = random_triplets(&scene, &masks, TripletDraw { n: 300, max_stride, color_range: 0.0 }, 3, 9);
         assert_eq!(again.pixel, t.pixel);
         // Where every pixel is an edge, nothing is placed.
         let edges: Vec<EdgeMask> = masks.iter().map(|m| EdgeMask { non_edge: vec![0; m.non_edge.len()], ..m.clone() }).collect();
-        assert!(random_triplets(&scene, &edges, 20, 4, 3, 9).pixel.iter().all(|p| p[0] == 0.0));
+        assert!(random_triplets(&scene, &edges, TripletDraw { n: 20, max_stride: 4, color_range: 0.0 }, 3, 9).pixel.iter().all(|p| p[0] == 0.0));
+    }
+
+    #[test]
+    fn triplets_with_a_colour_range_lie_where_the_colour_is_flat() {
+        let scene = three_view_creases();
+        let (w, h) = scene.image_size();
+        let masks = vec![EdgeMask::all_non_edge(w, h); scene.split.train.len()];
+        let range = 0.03;
+        let draw = TripletDraw { n: 200, max_stride: 8, color_range: range };
+        let t = random_triplets(&scene, &masks, draw, 5, 2);
+        let (mut placed, mut spread) = (0, 0.0f32);
+        for (k, rays) in t.rays.chunks(3).enumerate() {
+            if t.pixel[3 * k][0] == 0.0 {
+                continue;
+            }
+            placed += 1;
+            let (view, p) = scene.split.train.iter().find_map(|&v| {
+                let p: Option<Vec<(u32, u32)>> = rays.iter().map(|r| pixel_in_view(&scene, r, v)).collect();
+                p.map(|p| (v, p))
+            }).expect("training pixels of one view");
+            let (dx, dy) = ((p[1].0 as i64 - p[0].0 as i64).signum(), (p[1].1 as i64 - p[0].1 as i64).signum());
+            let steps = (p[2].0 as i64 - p[0].0 as i64).abs().max((p[2].1 as i64 - p[0].1 as i64).abs());
+            let colours: Vec<[f32; 3]> = (0..=steps)
+                .map(|k| scene.views[view].image.get((p[0].0 as i64 + k * dx) as u32, (p[0].1 as i64 + k * dy) as u32))
+                .collect();
+            for ch in 0..3 {
+                let (lo, hi) = colours.iter().fold((f32::MAX, f32::MIN), |(lo, hi), c| (lo.min(c[ch]), hi.max(c[ch])));
+                assert!(hi - lo <= range, "triplet {k}: channel {ch} spans {lo}..{hi} along {p:?}");
+                spread = spread.max(hi - lo);
+            }
+        }
+        // The floor and the flat faces are there to find; without the range the same
+        // draws land on shaded and textured pixels too.
+        assert!(placed > 100 && spread > 0.0, "{placed} placed");
+        let any = random_triplets(&scene, &masks, TripletDraw { color_range: 0.0, ..draw }, 5, 2);
+        assert_ne!(any.pixel, t.pixel);
     }
 
     #[test]
