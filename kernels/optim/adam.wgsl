@@ -41,37 +41,44 @@ const FLAG_SKIP_NONFINITE: u32 = 8u;
 
 @compute @workgroup_size(WG_SIZE)
 fn adam_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    // Every uniform read first, outside any branch: on lavapipe a storage read at a
+    // uniform address is one broadcast load there, and a per-lane load under the
+    // execution mask a divergent branch leaves behind (grid_forward.wgsl).
+    let c = cfg;
+    let nonfinite = stats[STAT_NONFINITE];
+    let applied = stats[STAT_APPLIED];
+    let clip_value = stats[STAT_CLIP_VALUE];
+    let scale = stats[STAT_SCALE];
     let i = thread_index(gid, nwg);
-    if (i >= cfg.n) {
+    if (i >= c.n) {
         return;
     }
-    if ((cfg.flags & FLAG_SKIP_NONFINITE) != 0u && stats[STAT_NONFINITE] > 0.0) {
+    if ((c.flags & FLAG_SKIP_NONFINITE) != 0u && nonfinite > 0.0) {
         return;
     }
     var g = grads[i];
-    if ((cfg.flags & FLAG_SKIP_ZERO_GRAD) != 0u && g == 0.0) {
+    if ((c.flags & FLAG_SKIP_ZERO_GRAD) != 0u && g == 0.0) {
         return;
     }
-    if (stats[STAT_APPLIED] == 0.0) {
-        let clip_value = stats[STAT_CLIP_VALUE];
+    if (applied == 0.0) {
         if (clip_value > 0.0) {
             g = clamp(g, -clip_value, clip_value);
         }
-        g = g * stats[STAT_SCALE];
+        g = g * scale;
     }
     var w = weights[i];
-    if ((cfg.flags & FLAG_L2) != 0u) {
-        g = g + cfg.weight_decay * w;
+    if ((c.flags & FLAG_L2) != 0u) {
+        g = g + c.weight_decay * w;
     }
-    let m = cfg.beta1 * moment1[i] + (1.0 - cfg.beta1) * g;
-    let v = cfg.beta2 * moment2[i] + (1.0 - cfg.beta2) * (g * g);
+    let m = c.beta1 * moment1[i] + (1.0 - c.beta1) * g;
+    let v = c.beta2 * moment2[i] + (1.0 - c.beta2) * (g * g);
     moment1[i] = m;
     moment2[i] = v;
-    let m_hat = m / cfg.bias1;
-    let v_hat = v / cfg.bias2;
-    var w_new = w - cfg.lr * (m_hat / (sqrt(v_hat) + cfg.eps));
-    if ((cfg.flags & FLAG_DECOUPLED) != 0u) {
-        w_new = w_new - cfg.lr * cfg.weight_decay * w;
+    let m_hat = m / c.bias1;
+    let v_hat = v / c.bias2;
+    var w_new = w - c.lr * (m_hat / (sqrt(v_hat) + c.eps));
+    if ((c.flags & FLAG_DECOUPLED) != 0u) {
+        w_new = w_new - c.lr * c.weight_decay * w;
     }
     weights[i] = w_new;
 }
