@@ -19,6 +19,10 @@
 //   0 e (in4)     1 delta1 (width4)   2 a1 (width4)   3 dh (4)      4 dL/dg (in4)
 //   5 xc (8)      6 deltac1 (width4)  7 ac1 (width4)  8 deltac2 (width4)
 //   9 ac2 (width4)  10 delta_out (1)
+// and, indexed by sample rather than by position in the chunk,
+//   11 the kept encoding: e (in4) and the packed normal Jacobian, written by the
+//      training forward (codegen's ForwardKeep) and read here instead of gathering the
+//      table again (codegen's BackwardKept; the Backward variant recomputes).
 
 //#include "field/grid_lib.wgsl"
 // encode, the MLP products and the other vector code: generated per configuration.
@@ -44,6 +48,8 @@ const R_AC1: u32 = 7u;
 const R_DC2: u32 = 8u;
 const R_AC2: u32 = 9u;
 const R_DO: u32 = 10u;
+// The kept encoding (BackwardKept): rows indexed by sample, not by position in the chunk.
+const R_KEPT: u32 = 11u;
 
 fn region(r: u32) -> u32 {
     return P.scratch[r >> 2u][r & 3u];
@@ -94,10 +100,10 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let up = to_unit(smp.pos);
     let normal_grads = with_normals && up.inside && in_chunk;
 
-    // Forward recomputation.
+    // Forward recomputation (the encoding from the table, or kept by the forward).
     var e: Vec64;
     var jac: Jac64;
-    encode(up.p, normal_grads, &e, &jac);
+    backward_encoding(i, up.p, normal_grads, &e, &jac);
     var a1: Vec64;
     var xc: Vec64;
     density_mlp(&e, &a1, &xc);

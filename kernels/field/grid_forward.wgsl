@@ -2,7 +2,10 @@
 // of a SampleBatch, dispatched over its capacity, returning past count[0]. Writes the
 // sigmoid colour and the post-activation density packed as (r, g, b, sigma) and, with FLAG_NORMALS, the unit normal
 // n = -grad_x sigma / |grad_x sigma| from the analytic gradient (zero when
-// |grad_x sigma| <= normal_eps or outside the AABB).
+// |grad_x sigma| <= normal_eps or outside the AABB). The variant of a training step
+// (codegen's ForwardKeep) also writes each sample's encoding and normal Jacobian to the
+// backward's scratch buffer (binding 7, declared by the generated code), which the
+// backward then reads instead of gathering them from the table again.
 
 //#include "field/grid_lib.wgsl"
 // encode, the MLP products and the other vector code: generated per configuration.
@@ -31,6 +34,9 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var e: Vec64;
     var jac: Jac64;
     encode(up.p, want_jac, &e, &jac);
+    // The training step's variant keeps e and the Jacobian for the backward (a no-op
+    // otherwise; generated).
+    keep_encoding(i, valid, &e, &jac);
     var a1: Vec64;
     var xc: Vec64;
     density_mlp(&e, &a1, &xc);

@@ -17,7 +17,9 @@
 //!   ([`FieldGrads`]) and **adds** exact parameter gradients into the gradient buffers
 //!   of [`Field::params`] (second order through the normals when asked). It recomputes
 //!   what it needs from the parameters, so it only requires that the parameters did not
-//!   change since the forward pass whose outputs the gradients refer to. The caller
+//!   change since the forward pass whose outputs the gradients refer to (after
+//!   [`Field::forward_for_backward`], nor the batch: the grid then reads the encoding
+//!   that forward kept). The caller
 //!   clears gradients with [`Field::zero_grads`] before a step. Given the list of the
 //!   samples that carry gradient ([`LiveSamples`]), the grid runs only those; the MLP
 //!   runs every sample (its zero-gradient samples add exact zeros).
@@ -70,6 +72,15 @@ pub trait Field {
     /// Density, colour and (when `normals`) unit normals of every sample of `batch`.
     /// Without `normals`, `out.normal` is left untouched.
     fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError>;
+
+    /// [`Field::forward`] for a training step whose [`Field::backward`] on the same
+    /// `batch` follows with the same parameters: a backend may keep what that backward
+    /// would otherwise recompute (the grid keeps each sample's encoding). The backward
+    /// gives the same gradients either way; by default this is `forward`.
+    fn forward_for_backward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
+        self.forward(gpu, batch, out, normals)
+    }
 
     /// Adds `dL/dparams` for the per-sample output gradients `grads` into the gradient
     /// buffers; `normal_grads` enables the second-order path through the normals

@@ -277,7 +277,7 @@ impl Pipeline {
         self.upload(gpu, scene, &model.config, batch, plan);
         model.sample(gpu, &self.bufs, Some(plan.jitter))?;
         end_stage(profile, gpu, Stage::Sampler)?;
-        model.field.forward(gpu, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
+        model.field.forward_for_backward(gpu, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
         end_stage(profile, gpu, Stage::FieldForward)?;
         let cut = model.wanted_counts().is_some();
         self.record_render_and_losses(gpu, model, scene, plan)?;

@@ -39,6 +39,15 @@ pub(super) enum GridKernel {
     Density,
     Forward,
     Backward,
+    /// The forward of a training step: also keeps each sample's encoding and normal
+    /// Jacobian in the scratch buffer's kept region for the backward.
+    ForwardKeep,
+    /// The backward reading the kept encoding instead of gathering it from the table.
+    BackwardKept,
+}
+
+impl GridKernel {
+    pub(super) const COUNT: usize = 5;
 }
 
 /// The dimensions the generated code is specialized for (vec4 units).
@@ -79,21 +88,103 @@ pub(super) fn source(layout: &GridLayout, kernel: GridKernel) -> String {
     density_hidden(&mut s, &d);
     match kernel {
         GridKernel::Density => density_h0(&mut s, &d),
-        GridKernel::Forward | GridKernel::Backward => {
+        _ => {
             density_mlp(&mut s, &d);
             color_mlp(&mut s, &d);
             density_dir(&mut s, &d);
             jac_t_vec(&mut s, &d);
         }
     }
-    if kernel == GridKernel::Backward {
-        color_backward(&mut s, &d);
-        normal_dg(&mut s, &d);
-        density_backward(&mut s, &d);
-        scatter_table_grads(&mut s, &d);
-        store_rows(&mut s, &d);
+    match kernel {
+        GridKernel::Density => {}
+        GridKernel::Forward | GridKernel::ForwardKeep => keep_encoding(&mut s, &d, kernel == GridKernel::ForwardKeep),
+        GridKernel::Backward | GridKernel::BackwardKept => {
+            backward_encoding(&mut s, &d, kernel == GridKernel::BackwardKept);
+            color_backward(&mut s, &d);
+            normal_dg(&mut s, &d);
+            density_backward(&mut s, &d);
+            scatter_table_grads(&mut s, &d);
+            store_rows(&mut s, &d);
+        }
     }
     s
+}
+
+/// vec4s of one sample's kept row: the encoding `e` (in4), then the normal path's
+/// Jacobian rows packed three floats each (`6 L` floats).
+pub(super) fn kept_dims4(layout: &GridLayout) -> u32 {
+    let d = Dims::of(layout);
+    d.in4 + kept_jac4(&d)
+}
+
+fn kept_jac4(d: &Dims) -> u32 {
+    (6 * d.levels).div_ceil(4)
+}
+
+/// Float `k` of the Jacobian rows packed three to a row: `(*jac)[k / 3]`, component `k % 3`.
+fn jac_comp(k: u32) -> String {
+    format!("(*jac)[{}].{}", k / 3, ["x", "y", "z"][(k % 3) as usize])
+}
+
+/// The forward's `keep_encoding`: with `keep`, the `kept` binding (the backward's
+/// scratch buffer) and the stores of sample `i`'s row at region `R_KEPT` (the
+/// Jacobian only when the forward computes normals); without it a no-op.
+fn keep_encoding(s: &mut String, d: &Dims, keep: bool) {
+    if !keep {
+        s.push_str("fn keep_encoding(i: u32, valid: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {}\n");
+        return;
+    }
+    s.push_str(concat!(
+        "// The backward's scratch buffer: sample i's encoding and packed Jacobian at\n",
+        "// P.scratch region 11 + i * row (engine/src/field/grid/mod.rs, `KEPT_REGION`).\n",
+        "@group(0) @binding(7) var<storage, read_write> kept: array<vec4<f32>>;\n",
+        "fn keep_encoding(i: u32, valid: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {\n",
+        "    if (!valid) {\n",
+        "        return;\n",
+        "    }\n",
+    ));
+    writeln!(s, "    let b = P.scratch[2][3] + i * {}u;", d.in4 + kept_jac4(d)).unwrap();
+    for k4 in 0..d.in4 {
+        writeln!(s, "    kept[b + {k4}u] = (*e)[{k4}];").unwrap();
+    }
+    s.push_str("    if ((P.flags & FLAG_NORMALS) == 0u) {\n        return;\n    }\n");
+    for j4 in 0..kept_jac4(d) {
+        let c: Vec<String> = (4 * j4..4 * j4 + 4)
+            .map(|k| if k < 6 * d.levels { jac_comp(k) } else { "0.0".to_string() })
+            .collect();
+        writeln!(s, "    kept[b + {}u] = vec4<f32>({});", d.in4 + j4, c.join(", ")).unwrap();
+    }
+    s.push_str("}\n");
+}
+
+/// The backward's `backward_encoding`: the encoding recomputed from the table, or with
+/// `kept` sample `i`'s row of region `R_KEPT` as the forward left it (the Jacobian
+/// read only when the normal path runs, zero otherwise, as `encode` leaves it).
+fn backward_encoding(s: &mut String, d: &Dims, kept: bool) {
+    s.push_str(concat!(
+        "// e and the normal path's Jacobian of sample i at unit position p.\n",
+        "fn backward_encoding(i: u32, p: vec3<f32>, want_jac: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {\n",
+    ));
+    if !kept {
+        s.push_str("    encode(p, want_jac, e, jac);\n}\n");
+        return;
+    }
+    writeln!(s, "    let b = region(R_KEPT) + i * {}u;", d.in4 + kept_jac4(d)).unwrap();
+    for k4 in 0..d.in4 {
+        writeln!(s, "    (*e)[{k4}] = scratch[b + {k4}u];").unwrap();
+    }
+    s.push_str("    if (!want_jac) {\n");
+    for r in 0..2 * d.levels {
+        writeln!(s, "        (*jac)[{r}] = vec3<f32>(0.0);").unwrap();
+    }
+    s.push_str("        return;\n    }\n");
+    for j4 in 0..kept_jac4(d) {
+        writeln!(s, "    let j{j4} = scratch[b + {}u];", d.in4 + j4).unwrap();
+    }
+    for k in 0..6 * d.levels {
+        writeln!(s, "    {} = j{}.{};", jac_comp(k), k / 4, ["x", "y", "z", "w"][(k % 4) as usize]).unwrap();
+    }
+    s.push_str("}\n");
 }
 
 /// Component `k % 4` of vec4 `k / 4` of array pointer `v`.
@@ -339,7 +430,7 @@ mod tests {
     fn every_array_index_and_weight_index_is_a_constant() {
         let cfg = GridConfig { n_levels: 5, hidden_width: 12, ..GridConfig::default() };
         let layout = GridLayout::new(&cfg).unwrap();
-        for kernel in [GridKernel::Density, GridKernel::Forward, GridKernel::Backward] {
+        for kernel in [GridKernel::Density, GridKernel::Forward, GridKernel::Backward, GridKernel::ForwardKeep, GridKernel::BackwardKept] {
             let src = source(&layout, kernel);
             // No loops at all in the generated text, and every weights[...] index is a literal.
             assert!(!src.contains("for ("), "{kernel:?}: generated code has a loop");

@@ -87,7 +87,8 @@
 //!
 //! # Kernels and performance design
 //! * `forward`: one thread per sample, fully fused (encode, both MLPs, normal).
-//! * `backward`: one thread per sample of a chunk: recomputes the forward pass,
+//! * `backward`: one thread per sample of a chunk: recomputes the forward pass (the
+//!   encoding read from the kept region when the training forward kept it, see below),
 //!   back-propagates, scatters the hash-feature gradients with `atomicAddF32` (as
 //!   Instant-NGP; combined per corner and feature, zeros skipped) and writes the layer
 //!   inputs/deltas to a scratch buffer (sample-major rows, 11 regions).
@@ -97,6 +98,23 @@
 //!   The normal path's two weight terms share `M = sum_s m_s (x) dg_s` (one more
 //!   `outer` with the ReLU mask), turned into `dW1 += diag(W2[0,:]) M` and
 //!   `dW2[0,j] += <W1[j,:], M[j,:]>` by `finalize` once per backward call.
+//! * **The kept encoding** ([`GridConfig::keep_encoding`], on by default): the forward
+//!   of a training step ([`Field::forward_for_backward`], codegen's `ForwardKeep`)
+//!   writes each sample's encoding `e` and the normal path's Jacobian rows (`6 L`
+//!   floats, packed) to a region of the backward's scratch buffer indexed by sample
+//!   (`R_KEPT`, `4 + 12` vec4s at 8 levels: 256 bytes a sample), and the backward that
+//!   follows (`BackwardKept`) reads them instead of gathering the 8 corners of every
+//!   level from the table again: the backward's only random accesses left are the
+//!   gradient scatter's. The region lives in the scratch buffer because the backward
+//!   already binds 8 storage buffers, the portable limit. The field remembers which
+//!   batch, levels and normal path the rows were written for and uses them once; any
+//!   other backward recomputes (`Backward`), with the same gradients in float-atomic
+//!   order (`field_grid_backward_from_the_kept_encoding`). Measured on lavapipe
+//!   (`edgenerf speed`, 2-core CPU, 2026-11-26, old and new binaries interleaved):
+//!   the demo's backward 114-116 -> 108 ms, its forward 33-34 -> 37.6 ms (the rows'
+//!   writes), sparse-small's backward unchanged: a wash on the CPU, where the
+//!   backward's cost is the scatter (above). The Jacobian rows are written and read
+//!   only when the pass computes normals.
 //! * The batch is processed in chunks of at most [`GridConfig::backward_chunk`] samples
 //!   so the scratch (2000 bytes per sample at the default width) stays under the
 //!   storage binding limit (128 MiB on lavapipe).
@@ -256,6 +274,11 @@ pub struct GridConfig {
     pub density_bias: f32,
     /// Most samples per backward chunk (bounds the scratch memory).
     pub backward_chunk: u32,
+    /// The training step's forward keeps each sample's encoding (and the normal path's
+    /// Jacobian) for the backward, which then reads it instead of gathering the hash
+    /// table again ("The kept encoding" in the module doc). On by default; off
+    /// recomputes it (the same gradients, in float-atomic order).
+    pub keep_encoding: bool,
     /// Optimizer hints: learning-rate multipliers and the MLP's L2 weight decay.
     pub table_lr_scale: f32,
     pub mlp_lr_scale: f32,
@@ -280,6 +303,7 @@ impl Default for GridConfig {
             dense_normal_levels: false,
             density_bias: 0.0,
             backward_chunk: 1 << 16,
+            keep_encoding: true,
             table_lr_scale: 1.0,
             mlp_lr_scale: 1.0,
             mlp_weight_decay: 1e-6,
@@ -567,6 +591,10 @@ const DENSITY: KernelSpec =
     KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[P, R, U, R, RW] };
 const FORWARD: KernelSpec =
     KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[P, R, U, R, R, RW, RW] };
+/// The training step's forward (codegen's `ForwardKeep`): binding 7 is the backward's
+/// scratch buffer, whose kept region it writes.
+const FORWARD_KEEP: KernelSpec =
+    KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[P, R, U, R, R, RW, RW, RW] };
 const BACKWARD: KernelSpec = KernelSpec {
     file: "field/grid_backward.wgsl",
     entry: "backward",
@@ -635,6 +663,23 @@ struct Scratch {
     chunk: u32,
     /// vec4 offset of each region.
     offsets: [u32; region::COUNT],
+    /// Samples the kept region holds (0: none), and its vec4 offset (region 11 of
+    /// `GridParams::scratch`).
+    kept_capacity: u32,
+    kept_offset: u32,
+}
+
+/// The `scratch` slot of `GridParams` holding the kept region's offset (`R_KEPT`).
+const KEPT_REGION: usize = 11;
+
+/// What the kept region holds: the encoding of the batch whose samples are `samples`,
+/// written by [`Field::forward_for_backward`] with or without the normal Jacobian, at
+/// `active_levels`. The backward uses it only when its batch, levels and normal path
+/// match, and consumes it.
+struct KeptEncoding {
+    samples: wgpu::Buffer,
+    normals: bool,
+    active_levels: u32,
 }
 
 // ---------------------------------------------------------------- the field
@@ -652,13 +697,15 @@ pub struct GridField {
     /// `M = sum_s m_s (x) dg_s` of the normal path, `[W][in_pad]`.
     normal_m: GpuBuffer<f32>,
     scratch: Option<Scratch>,
+    /// The encoding the last training forward kept, if any (see [`KeptEncoding`]).
+    kept: Option<KeptEncoding>,
     /// Uniform copy of the MLP weights read by the per-sample kernels, refreshed from
     /// `mlp` at the start of every pass (uniform-buffer reads are broadcasts).
     mlp_uniform: wgpu::Buffer,
     /// The density, forward and backward pipelines with the vector code generated for
     /// `layout` (`codegen`), built on first use: a dispatch neither regenerates nor
     /// looks up the text.
-    kernels: [OnceLock<Arc<Kernel>>; 3],
+    kernels: [OnceLock<Arc<Kernel>>; GridKernel::COUNT],
     /// Dispatch arguments of the forward and the backward's chunks, from the batch's
     /// GPU-side count (`gpu::IndirectArgs`): only the samples present are launched.
     indirect: Option<IndirectArgs>,
@@ -704,6 +751,7 @@ impl GridField {
             layout,
             indirect: None,
             scratch: None,
+            kept: None,
             mlp_uniform: gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("grid mlp (uniform copy)"),
                 size: MAX_WEIGHT_FLOATS as u64 * 4,
@@ -760,6 +808,7 @@ impl GridField {
             for (r, off) in s.offsets.iter().enumerate() {
                 scratch[r / 4][r % 4] = *off;
             }
+            scratch[KEPT_REGION / 4][KEPT_REGION % 4] = s.kept_offset;
         }
         let l = &self.layout;
         GridParams {
@@ -809,25 +858,76 @@ impl GridField {
         }
     }
 
-    /// Makes sure a scratch buffer for chunks of up to `capacity` samples exists.
+    /// Makes sure a scratch buffer for chunks of up to `capacity` samples exists, with
+    /// a kept region for `capacity` samples when `config.keep_encoding` is on and it
+    /// fits the binding limit beside the chunks. A new buffer drops the kept encoding.
     fn ensure_scratch(&mut self, gpu: &Gpu, capacity: u32) -> Result<(), GpuError> {
         let dims = scratch_dims4(&self.layout);
         let per_sample_bytes = 16 * dims.iter().sum::<u32>() as u64;
         let limit = gpu.limits().max_storage_buffer_binding_size;
-        let by_limit = ((limit / per_sample_bytes) as u32) / 64 * 64;
+        let kept_bytes = 16 * codegen::kept_dims4(&self.layout) as u64 * capacity as u64;
+        // The kept region may take at most half the binding; the chunks take the rest.
+        let kept_capacity = if self.config.keep_encoding && kept_bytes <= limit / 2 { capacity } else { 0 };
+        let by_limit = (((limit - 16 * codegen::kept_dims4(&self.layout) as u64 * kept_capacity as u64) / per_sample_bytes) as u32) / 64 * 64;
         let wanted = self.config.backward_chunk.min(by_limit).min(capacity.max(1).next_multiple_of(64)).max(64);
-        if self.scratch.as_ref().is_some_and(|s| s.chunk >= wanted) {
+        if self.scratch.as_ref().is_some_and(|s| s.chunk >= wanted && s.kept_capacity >= kept_capacity) {
             return Ok(());
         }
         self.scratch = None;
+        self.kept = None;
         let mut offsets = [0u32; region::COUNT];
         let mut total = 0u32;
         for (o, d) in offsets.iter_mut().zip(dims) {
             *o = total;
             total += d * wanted;
         }
+        let kept_offset = total;
+        total += codegen::kept_dims4(&self.layout) * kept_capacity;
         let buffer = GpuBuffer::zeros(gpu, "grid backward scratch", total as usize)?;
-        self.scratch = Some(Scratch { buffer, chunk: wanted, offsets });
+        self.scratch = Some(Scratch { buffer, chunk: wanted, offsets, kept_capacity, kept_offset });
+        Ok(())
+    }
+
+    /// The forward of `batch`, keeping its encoding for the backward when `keep`.
+    fn run_forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool, keep: bool) -> Result<(), GpuError> {
+        let cap = batch.capacity;
+        out.assert_capacity(cap, "forward: FieldOutputs");
+        let keep = keep && {
+            self.ensure_scratch(gpu, cap)?;
+            self.scratch.as_ref().is_some_and(|s| s.kept_capacity >= cap)
+        };
+        let kernel = if keep {
+            self.kernel(gpu, &FORWARD_KEEP, GridKernel::ForwardKeep)?
+        } else {
+            self.kernel(gpu, &FORWARD, GridKernel::Forward)?
+        };
+        let flags = if normals { FLAG_NORMALS } else { 0 };
+        self.ensure_indirect(gpu, 1);
+        let args = self.indirect.as_ref().expect("made above");
+        let (mlp_uniform, table) = (&self.mlp_uniform, &self.table.buffer);
+        let mut enc = gpu.encoder();
+        let params = enc.params(&self.dispatch_params(cap, flags, 0, cap));
+        enc.copy(&self.mlp.buffer, mlp_uniform, self.layout.mlp_len as u64 * 4);
+        args.record(&mut enc, &batch.count.buffer, cap, cap.max(1), 1)?;
+        let mut bindings = vec![
+            &params,
+            table,
+            mlp_uniform,
+            &batch.samples.buffer,
+            &batch.count.buffer,
+            &out.rgb_density.buffer,
+            &out.normal.buffer,
+        ];
+        if keep {
+            bindings.push(&self.scratch.as_ref().expect("ensured above").buffer.buffer);
+        }
+        args.dispatch(&mut enc, &kernel, &bindings, 0);
+        enc.submit();
+        self.kept = keep.then(|| KeptEncoding {
+            samples: batch.samples.buffer.clone(),
+            normals,
+            active_levels: self.active_levels,
+        });
         Ok(())
     }
 }
@@ -854,33 +954,13 @@ impl Field for GridField {
     }
 
     fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
-        let cap = batch.capacity;
-        out.assert_capacity(cap, "forward: FieldOutputs");
-        let kernel = self.kernel(gpu, &FORWARD, GridKernel::Forward)?;
-        let flags = if normals { FLAG_NORMALS } else { 0 };
-        self.ensure_indirect(gpu, 1);
-        let args = self.indirect.as_ref().expect("made above");
-        let (mlp_uniform, table) = (&self.mlp_uniform, &self.table.buffer);
-        let mut enc = gpu.encoder();
-        let params = enc.params(&self.dispatch_params(cap, flags, 0, cap));
-        enc.copy(&self.mlp.buffer, mlp_uniform, self.layout.mlp_len as u64 * 4);
-        args.record(&mut enc, &batch.count.buffer, cap, cap.max(1), 1)?;
-        args.dispatch(
-            &mut enc,
-            &kernel,
-            &[
-                &params,
-                table,
-                mlp_uniform,
-                &batch.samples.buffer,
-                &batch.count.buffer,
-                &out.rgb_density.buffer,
-                &out.normal.buffer,
-            ],
-            0,
-        );
-        enc.submit();
-        Ok(())
+        self.run_forward(gpu, batch, out, normals, false)
+    }
+
+    fn forward_for_backward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
+        let keep = self.config.keep_encoding;
+        self.run_forward(gpu, batch, out, normals, keep)
     }
 
     fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, live: Option<&LiveSamples>, normal_grads: bool)
@@ -897,7 +977,16 @@ impl Field for GridField {
         let chunk = self.scratch.as_ref().expect("scratch allocated above").chunk;
         let n_chunks = cap.div_ceil(chunk).max(1);
         self.ensure_indirect(gpu, n_chunks);
-        let backward = self.kernel(gpu, &BACKWARD, GridKernel::Backward)?;
+        // The kept encoding serves this backward when it is of this batch, at these
+        // levels, with the Jacobian if the normal path runs; it is used once.
+        let kept = self.kept.take().is_some_and(|k| {
+            k.samples == batch.samples.buffer && k.active_levels == self.active_levels && (k.normals || !normal_grads)
+        });
+        let backward = if kept {
+            self.kernel(gpu, &BACKWARD, GridKernel::BackwardKept)?
+        } else {
+            self.kernel(gpu, &BACKWARD, GridKernel::Backward)?
+        };
         let outer = gpu.kernel(&OUTER)?;
         let finalize = gpu.kernel(&FINALIZE)?;
         let scratch = self.scratch.as_ref().expect("scratch allocated above");
@@ -1049,6 +1138,7 @@ impl Field for GridField {
         }
         self.table.write(gpu, &table.data);
         self.mlp.write(gpu, &mlp);
+        self.kept = None;
         Ok(())
     }
 

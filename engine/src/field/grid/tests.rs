@@ -654,6 +654,104 @@ fn field_grid_backward_skips_samples_without_gradient_exactly() {
     assert_close("mlp grads of the live list", &to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
 }
 
+/// The training step's path: `forward_for_backward` keeps each sample's encoding and
+/// normal Jacobian, and the backward that follows reads them instead of gathering the
+/// table (in chunks, and over a live list with some samples skipped). The gradients
+/// equal the reference's; the kept rows are what the backward reads (zeroing them
+/// changes its result); a kept encoding without the Jacobian, of another batch or at
+/// other levels is not used, and one is used only once.
+fn backward_from_the_kept_encoding(cfg: GridConfig) {
+    let n = 200;
+    let cfg = GridConfig { backward_chunk: 64, ..cfg };
+    let mut s = setup(&cfg, n, 256, 77, false);
+    let mut w = LossWeights::random(n, 78, 1.0, 1.0, 1.0);
+    for i in (0..n).filter(|i| i % 5 == 1) {
+        (w.a[i], w.b[i], w.c[i]) = (0.0, [0.0; 4], [0.0; 4]);
+    }
+    let grads = w.upload(&s.gpu, 256);
+    let m = s.field.reference(&s.gpu).unwrap();
+    let cpu = w.cpu_grads(&m, &s.samples, true);
+    let out = FieldOutputs::new(&s.gpu, 256).unwrap();
+    let table_grad = |s: &Setup| to_f64(&s.field.table_grad.read(&s.gpu).unwrap());
+    let mlp_grad = |s: &Setup| to_f64(&s.field.mlp_grad.read(&s.gpu).unwrap());
+    let check = |s: &Setup, what: &str| {
+        assert_close(&format!("table grads, {what}"), &table_grad(s), &cpu.table, 3e-4, 3e-3);
+        assert_close(&format!("mlp grads, {what}"), &mlp_grad(s), &cpu.mlp, 3e-4, 3e-3);
+    };
+
+    s.field.forward_for_backward(&s.gpu, &s.batch, &out, true).unwrap();
+    assert!(s.field.kept.is_some(), "the training forward keeps the encoding");
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
+    assert!(s.field.kept.is_none(), "used once");
+    check(&s, "kept encoding");
+
+    let listed: Vec<u32> =
+        (0..n).filter(|&i| w.a[i] != 0.0 || w.b[i] != [0.0; 4] || w.c[i] != [0.0; 4]).map(|i| i as u32).collect();
+    let live = LiveSamples::new(&s.gpu, 256).unwrap();
+    live.write(&s.gpu, &listed);
+    s.field.forward_for_backward(&s.gpu, &s.batch, &out, true).unwrap();
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &grads, Some(&live), true).unwrap();
+    check(&s, "kept encoding, live list");
+
+    // The backward reads the kept rows: zeroed, the gradients change.
+    s.field.forward_for_backward(&s.gpu, &s.batch, &out, true).unwrap();
+    let scratch = s.field.scratch.as_ref().unwrap();
+    let mut rows = scratch.buffer.read(&s.gpu).unwrap();
+    let kept = scratch.kept_offset as usize..rows.len();
+    assert_eq!(kept.len(), codegen::kept_dims4(&s.field.layout) as usize * 256);
+    rows[kept].iter_mut().for_each(|r| *r = [0.0; 4]);
+    scratch.buffer.write(&s.gpu, &rows);
+    s.field.zero_grads(&s.gpu);
+    s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
+    let zeroed = mlp_grad(&s);
+    let diff = zeroed.iter().zip(&cpu.mlp).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    assert!(diff > 1e-3 * cpu.mlp.iter().fold(0.0f64, |a, v| a.max(v.abs())), "the kept rows were not read");
+
+    // Not used: kept without the Jacobian for a backward through the normals, after a
+    // level change, for another batch; nor a second time.
+    let other = SampleBatch::new(&s.gpu, 1, 256).unwrap();
+    other.samples.write(&s.gpu, &s.samples);
+    other.count.write(&s.gpu, &[n as u32, n as u32]);
+    type Prepare<'a> = &'a dyn Fn(&mut Setup);
+    let cases: [(&str, Prepare); 4] = [
+        ("kept without normals", &|s| s.field.forward_for_backward(&s.gpu, &s.batch, &out, false).unwrap()),
+        ("kept at other levels", &|s| {
+            s.field.set_active_levels(2);
+            s.field.forward_for_backward(&s.gpu, &s.batch, &out, true).unwrap();
+            s.field.set_active_levels(cfg.n_levels);
+        }),
+        ("kept for another batch", &|s| s.field.forward_for_backward(&s.gpu, &other, &out, true).unwrap()),
+        ("kept and used before", &|s| {
+            s.field.forward_for_backward(&s.gpu, &s.batch, &out, true).unwrap();
+            s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
+        }),
+    ];
+    for (what, prepare) in cases {
+        // Poison the kept region: a backward that read it would not match.
+        prepare(&mut s);
+        let scratch = s.field.scratch.as_ref().unwrap();
+        let mut rows = scratch.buffer.read(&s.gpu).unwrap();
+        let kept = scratch.kept_offset as usize..rows.len();
+        rows[kept].iter_mut().for_each(|r| *r = [f32::NAN; 4]);
+        scratch.buffer.write(&s.gpu, &rows);
+        s.field.zero_grads(&s.gpu);
+        s.field.backward(&s.gpu, &s.batch, &grads, None, true).unwrap();
+        check(&s, what);
+    }
+}
+
+#[test]
+fn field_grid_backward_from_the_kept_encoding() {
+    backward_from_the_kept_encoding(small_config());
+}
+
+#[test]
+fn field_grid_backward_from_the_kept_encoding_with_band_limited_normals() {
+    backward_from_the_kept_encoding(GridConfig { dense_normal_levels: true, ..band_limited_config() });
+}
+
 #[test]
 fn field_grid_backward_chunks_and_accumulation() {
     // A 64-sample chunk over 200 samples (capacity 256, count 200) must give the same
@@ -766,7 +864,13 @@ fn generated_kernels_of_every_preset_validate() {
         }
     }
     assert!(configs.len() >= 5, "the presets were not found in {}", dir.display());
-    let kernels = [(&DENSITY, codegen::GridKernel::Density), (&FORWARD, codegen::GridKernel::Forward), (&BACKWARD, codegen::GridKernel::Backward)];
+    let kernels = [
+        (&DENSITY, codegen::GridKernel::Density),
+        (&FORWARD, codegen::GridKernel::Forward),
+        (&BACKWARD, codegen::GridKernel::Backward),
+        (&FORWARD_KEEP, codegen::GridKernel::ForwardKeep),
+        (&BACKWARD, codegen::GridKernel::BackwardKept),
+    ];
     let mut problems = Vec::new();
     for (name, cfg) in &configs {
         let layout = GridLayout::new(cfg).unwrap();
