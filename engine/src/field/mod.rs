@@ -19,8 +19,8 @@
 //!   what it needs from the parameters, so it only requires that the parameters did not
 //!   change since the forward pass whose outputs the gradients refer to (after
 //!   [`Field::forward_for_backward`], nor the batch: the grid then reads the encoding
-//!   that forward kept). The caller
-//!   clears gradients with [`Field::zero_grads`] before a step. Given the list of the
+//!   that forward kept). The caller clears gradients with [`Field::zero_grads`]
+//!   before a step. Given the list of the
 //!   samples that carry gradient ([`LiveSamples`]), the grid runs only those; the MLP
 //!   runs every sample (its zero-gradient samples add exact zeros).
 //! * Parameters live on the GPU in `f32` buffers, grouped for the optimizer
