@@ -12,8 +12,8 @@
 //#include "optim/grad_stats.wgsl"
 
 const RED_WG: u32 = 256u;
-const ITEMS: u32 = 8u;
-const BLOCK: u32 = 2048u; // RED_WG * ITEMS
+const ITEMS: u32 = 64u;
+const BLOCK: u32 = 16384u; // RED_WG * ITEMS
 
 struct PartialParams {
     n: u32,

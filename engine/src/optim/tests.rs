@@ -688,3 +688,50 @@ fn configs_roundtrip_through_serde() {
     let bad = OptimConfig { adam: AdamConfig { beta1: 1.5, ..Default::default() }, ..Default::default() };
     assert!(matches!(bad.validate(), Err(OptimError::Config(_))));
 }
+
+/// Time of the trainer's optimizer stage (global norm + Adam) on the presets' sizes: a
+/// sparse table group of 0.78 M floats with 40 % zero gradients and a dense MLP group
+/// of 6 k. Not a pass/fail test: `cargo test -p edgenerf-engine --release
+/// optimizer_stage_throughput -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn optimizer_stage_throughput() {
+    let gpu = gpu();
+    let mut rng = SplitMix64::new(5);
+    let sizes = [("grid.table", 776_950usize, true), ("grid.mlp", 6_144, false)];
+    let bufs: Vec<(GpuBuffer<f32>, GpuBuffer<f32>)> = sizes
+        .iter()
+        .map(|&(name, n, sparse)| {
+            let p = random_vec(&mut rng, n, 1.0);
+            let g: Vec<f32> = random_vec(&mut rng, n, 1e-3).into_iter().enumerate().map(|(i, x)| if sparse && i % 5 < 2 { 0.0 } else { x }).collect();
+            (GpuBuffer::from_slice(&gpu, name, &p).unwrap(), GpuBuffer::from_slice(&gpu, name, &g).unwrap())
+        })
+        .collect();
+    let groups: Vec<ParamGroup> =
+        sizes.iter().zip(&bufs).map(|(&(name, _, sparse), (p, g))| ParamGroup::new(name, p, g).sparse(sparse)).collect();
+    let mut adam = Adam::for_groups(&gpu, &groups, AdamConfig::default()).unwrap();
+    let mut norm = GradNorm::new(&gpu).unwrap();
+    let clip = ClipConfig::default();
+    let grads = ParamGroup::grads_of(&groups);
+    let time = |what: &str, f: &mut dyn FnMut()| {
+        f();
+        gpu.wait().unwrap();
+        let reps = 20;
+        let t = std::time::Instant::now();
+        for _ in 0..reps {
+            f();
+        }
+        gpu.wait().unwrap();
+        println!("{what}: {:.2} ms", t.elapsed().as_secs_f64() * 1e3 / reps as f64);
+    };
+    time("global norm", &mut || {
+        let mut enc = gpu.encoder();
+        norm.record(&gpu, &mut enc, &grads, &clip).unwrap();
+        enc.submit();
+    });
+    time("adam", &mut || {
+        let mut enc = gpu.encoder();
+        adam.record_step(&gpu, &mut enc, &groups, 1e-3, Some(&norm)).unwrap();
+        enc.submit();
+    });
+}
