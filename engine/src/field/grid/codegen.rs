@@ -30,7 +30,7 @@
 
 use std::fmt::Write;
 
-use super::{GridLayout, DENSITY_OUT, SH_TERMS};
+use super::{GridLayout, DENSITY_OUT, KEPT_REGION, SH_TERMS};
 
 /// Which kernel the text is for: each gets the functions it calls (the backward's refer
 /// to its own bindings).
@@ -136,14 +136,14 @@ fn keep_encoding(s: &mut String, d: &Dims, keep: bool) {
     }
     s.push_str(concat!(
         "// The backward's scratch buffer: sample i's encoding and packed Jacobian at\n",
-        "// P.scratch region 11 + i * row (engine/src/field/grid/mod.rs, `KEPT_REGION`).\n",
+        "// P.scratch slot KEPT_REGION + i * row (engine/src/field/grid/mod.rs).\n",
         "@group(0) @binding(7) var<storage, read_write> kept: array<vec4<f32>>;\n",
         "fn keep_encoding(i: u32, valid: bool, e: ptr<function, Vec64>, jac: ptr<function, Jac64>) {\n",
         "    if (!valid) {\n",
         "        return;\n",
         "    }\n",
     ));
-    writeln!(s, "    let b = P.scratch[2][3] + i * {}u;", d.in4 + kept_jac4(d)).unwrap();
+    writeln!(s, "    let b = P.scratch[{}][{}] + i * {}u;", KEPT_REGION / 4, KEPT_REGION % 4, d.in4 + kept_jac4(d)).unwrap();
     for k4 in 0..d.in4 {
         writeln!(s, "    kept[b + {k4}u] = (*e)[{k4}];").unwrap();
     }

@@ -669,7 +669,8 @@ struct Scratch {
     kept_offset: u32,
 }
 
-/// The `scratch` slot of `GridParams` holding the kept region's offset (`R_KEPT`).
+/// The `scratch` slot of `GridParams` holding the kept region's offset (`R_KEPT` in
+/// `grid_backward.wgsl`; the generated forward reads the slot from here).
 const KEPT_REGION: usize = 11;
 
 /// What the kept region holds: the encoding of the batch whose samples are `samples`,
@@ -865,10 +866,11 @@ impl GridField {
         let dims = scratch_dims4(&self.layout);
         let per_sample_bytes = 16 * dims.iter().sum::<u32>() as u64;
         let limit = gpu.limits().max_storage_buffer_binding_size;
-        let kept_bytes = 16 * codegen::kept_dims4(&self.layout) as u64 * capacity as u64;
+        let kept_row_bytes = 16 * codegen::kept_dims4(&self.layout) as u64;
         // The kept region may take at most half the binding; the chunks take the rest.
-        let kept_capacity = if self.config.keep_encoding && kept_bytes <= limit / 2 { capacity } else { 0 };
-        let by_limit = (((limit - 16 * codegen::kept_dims4(&self.layout) as u64 * kept_capacity as u64) / per_sample_bytes) as u32) / 64 * 64;
+        let kept_capacity =
+            if self.config.keep_encoding && kept_row_bytes * capacity as u64 <= limit / 2 { capacity } else { 0 };
+        let by_limit = (((limit - kept_row_bytes * kept_capacity as u64) / per_sample_bytes) as u32) / 64 * 64;
         let wanted = self.config.backward_chunk.min(by_limit).min(capacity.max(1).next_multiple_of(64)).max(64);
         if self.scratch.as_ref().is_some_and(|s| s.chunk >= wanted && s.kept_capacity >= kept_capacity) {
             return Ok(());
@@ -892,10 +894,10 @@ impl GridField {
     fn run_forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool, keep: bool) -> Result<(), GpuError> {
         let cap = batch.capacity;
         out.assert_capacity(cap, "forward: FieldOutputs");
-        let keep = keep && {
+        if keep {
             self.ensure_scratch(gpu, cap)?;
-            self.scratch.as_ref().is_some_and(|s| s.kept_capacity >= cap)
-        };
+        }
+        let keep = keep && self.scratch.as_ref().is_some_and(|s| s.kept_capacity >= cap);
         let kernel = if keep {
             self.kernel(gpu, &FORWARD_KEEP, GridKernel::ForwardKeep)?
         } else {
