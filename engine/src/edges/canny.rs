@@ -128,7 +128,7 @@ fn gaussian_kernel(sigma: f32) -> Vec<f32> {
 }
 
 /// Separable Gaussian blur with replicated borders; `sigma <= 0` (or NaN) returns a copy.
-fn gaussian_blur(img: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
+pub fn gaussian_blur(img: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
     if sigma.is_nan() || sigma <= 0.0 {
         return img.to_vec();
     }

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use crate::data::Scene;
 
 pub use cache::edge_masks_cached;
-pub use canny::{canny, luma};
+pub use canny::{canny, gaussian_blur, luma};
 
 /// Where the edge maps come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -184,6 +184,15 @@ pub struct RegConfig {
     /// may have in its training image (0: any): `L_pl` only where the colour is flat
     /// ([`crate::train::rays::random_triplets`]).
     pub planarity_color_range: f32,
+    /// Weight of the cross-view photometric consistency of the rendered depth
+    /// ([`super::reprojection`]) on the batch's photometric rays, on the same schedule
+    /// (0: off). A depth regularizer: `depth = false` switches it off with `L_z`.
+    pub lambda_reprojection: f32,
+    /// Scale `delta` of its Charbonnier penalty, in colour units.
+    pub reprojection_delta: f32,
+    /// Standard deviation (pixels) of the Gaussian blur of the images it compares (0:
+    /// none): its reach in disparity.
+    pub reprojection_blur: f32,
 }
 
 impl Default for RegConfig {
@@ -210,6 +219,9 @@ impl Default for RegConfig {
             planarity_scale: 0.0,
             planarity_coherence: 0.0,
             planarity_color_range: 0.0,
+            lambda_reprojection: 0.0,
+            reprojection_delta: 0.02,
+            reprojection_blur: 0.0,
         }
     }
 }
@@ -230,6 +242,12 @@ impl RegConfig {
             || (self.normal && self.lambda_normal_for(dtu_scene) > 0.0)
             || (self.normal && self.lambda_depth_normal > 0.0)
             || self.planarity_on()
+            || self.reprojection_on()
+    }
+
+    /// Whether the reprojection term runs (weight above 0 with `L_z`'s switch on).
+    pub fn reprojection_on(&self) -> bool {
+        self.depth && self.lambda_reprojection > 0.0
     }
 
     /// Whether the planarity term runs (weight above 0 with `L_z`'s switch on).
@@ -266,8 +284,11 @@ impl RegConfig {
             lambda_planarity: if self.planarity_on() { ramp * self.lambda_planarity } else { 0.0 },
             planarity_scale: self.planarity_scale,
             planarity_coherence: self.planarity_coherence,
+            lambda_reprojection: if self.reprojection_on() { ramp * self.lambda_reprojection } else { 0.0 },
+            reprojection_delta: self.reprojection_delta,
         };
-        (w.lambda_depth > 0.0 || w.lambda_normal > 0.0 || w.lambda_depth_normal > 0.0 || w.lambda_planarity > 0.0).then_some(w)
+        let any = [w.lambda_depth, w.lambda_normal, w.lambda_depth_normal, w.lambda_planarity, w.lambda_reprojection];
+        any.iter().any(|&l| l > 0.0).then_some(w)
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -283,6 +304,9 @@ impl RegConfig {
             ("planarity_scale", Some(self.planarity_scale)),
             ("planarity_coherence", Some(self.planarity_coherence)),
             ("planarity_color_range", Some(self.planarity_color_range)),
+            ("lambda_reprojection", Some(self.lambda_reprojection)),
+            ("reprojection_delta", Some(self.reprojection_delta)),
+            ("reprojection_blur", Some(self.reprojection_blur)),
         ];
         for (key, v) in values {
             if let Some(v) = v
@@ -290,6 +314,9 @@ impl RegConfig {
             {
                 return Err(format!("reg.{key} = {v}: weights and thresholds must be finite and >= 0"));
             }
+        }
+        if self.reprojection_delta <= 0.0 {
+            return Err(format!("reg.reprojection_delta = {}: the Charbonnier scale must be > 0", self.reprojection_delta));
         }
         if self.planarity_triplets > MAX_PLANARITY_TRIPLETS {
             return Err(format!("reg.planarity_triplets = {} must be at most {MAX_PLANARITY_TRIPLETS}", self.planarity_triplets));
@@ -324,6 +351,9 @@ pub struct EdgeRegWeights {
     pub planarity_scale: f32,
     /// Its coherence gate's exponent (0: none).
     pub planarity_coherence: f32,
+    /// The reprojection term's weight (0: off) and its Charbonnier scale.
+    pub lambda_reprojection: f32,
+    pub reprojection_delta: f32,
 }
 
 impl EdgeRegWeights {

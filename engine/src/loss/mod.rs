@@ -4,8 +4,9 @@
 //! Owns the photometric loss ([`photometric`]) and the edge-guided depth/normal
 //! regularizers of EdgeNeRF ([`edge_reg`]), the edge-guided depth-normal consistency on
 //! the same patches ([`depth_normal`]), their long-range planarity on triplets of
-//! pixels inside non-edge regions ([`planarity`]) and RegNeRF's depth total variation
-//! on patches from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
+//! pixels inside non-edge regions ([`planarity`]), the cross-view photometric
+//! consistency of the rendered depth ([`reprojection`]) and RegNeRF's depth total
+//! variation on patches from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
 //! `dL/d RayOutput` per ray into one shared gradient buffer, never touching sampler,
 //! field or renderer state; the photometric loss writes (it runs first), the others add.
 
@@ -14,6 +15,7 @@ pub mod depth_tv;
 pub mod edge_reg;
 pub mod photometric;
 pub mod planarity;
+pub mod reprojection;
 #[cfg(test)]
 pub(crate) mod test_support;
 
@@ -22,6 +24,7 @@ pub use depth_tv::DepthTv;
 pub use edge_reg::{EdgeReg, EdgeRegLosses, EdgeRegWeights, RegConfig, RegVariant};
 pub use photometric::Photometric;
 pub use planarity::{Planarity, PlanarityTerm};
+pub use reprojection::{Reprojection, ReprojectionViews};
 
 /// The sum (in `f64`) of the first `n` per-ray or per-patch loss terms a kernel wrote into
 /// `terms` (waits for the GPU).

@@ -405,6 +405,12 @@ impl RunConfig {
                 self.reg.lambda_planarity
             ));
         }
+        if self.reg.reprojection_on() && self.train.batch != BatchKind::Patches {
+            return Err(format!(
+                "reg.lambda_reprojection = {}: the reprojection term runs on patch batches with the edge-guided terms; set train.batch = \"patches\" or the weight to 0",
+                self.reg.lambda_reprojection
+            ));
+        }
         self.regnerf.validate()?;
         self.priors.validate()?;
         self.sampler.validate().map_err(|e| format!("sampler: {e}"))?;
@@ -644,6 +650,8 @@ mod tests {
             ("reg.tau_normal=-0.5", "reg.tau_normal"),
             ("reg.lambda_planarity=-1", "reg.lambda_planarity"),
             ("reg.planarity_triplets=100000000", "reg.planarity_triplets"),
+            ("reg.lambda_reprojection=-1", "reg.lambda_reprojection"),
+            ("reg.reprojection_delta=0", "reg.reprojection_delta"),
             ("regnerf.patch_size=100000", "regnerf.patch_size"),
             ("regnerf.n_poses=0", "regnerf.n_poses"),
             ("edges.tau_e=300", "tau_e"),

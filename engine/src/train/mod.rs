@@ -171,6 +171,9 @@ pub struct StepStats {
     /// The edge-guided planarity (unweighted) and its weight this step.
     pub loss_planarity: f32,
     pub lambda_planarity: f32,
+    /// The cross-view reprojection term (unweighted) and its weight this step.
+    pub loss_reprojection: f32,
+    pub lambda_reprojection: f32,
     /// Samples the step's batch could hold ([`crate::train::TrainConfig::grow_capacity`]
     /// raises it for the next step when rays were cut).
     pub sample_capacity: u32,
@@ -218,17 +221,19 @@ impl StepStats {
             lambda_depth_normal: plan.reg.map_or(0.0, |w| w.lambda_depth_normal),
             loss_planarity: losses.planarity,
             lambda_planarity: plan.reg.map_or(0.0, |w| w.lambda_planarity),
+            loss_reprojection: losses.reprojection,
+            lambda_reprojection: plan.reg.map_or(0.0, |w| w.lambda_reprojection),
         }
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal,loss_planarity,lambda_planarity";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal,loss_planarity,lambda_planarity,loss_reprojection,lambda_reprojection";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -254,7 +259,9 @@ impl StepStats {
             self.loss_depth_normal,
             self.lambda_depth_normal,
             self.loss_planarity,
-            self.lambda_planarity
+            self.lambda_planarity,
+            self.loss_reprojection,
+            self.lambda_reprojection
         )
     }
 }

@@ -41,7 +41,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm};
+use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection, ReprojectionViews};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -99,6 +99,8 @@ pub struct BatchLosses {
     pub depth_normal: f32,
     /// The edge-guided planarity `L_pl` on the batch's triplets.
     pub planarity: f32,
+    /// The cross-view photometric consistency of the rendered depth.
+    pub reprojection: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
     /// The sampler's counts: samples kept, and samples the rays wanted.
@@ -120,6 +122,7 @@ impl BatchLosses {
             (self.orientation, "the orientation penalty"),
             (self.depth_normal, "the depth-normal consistency"),
             (self.planarity, "the planarity term"),
+            (self.reprojection, "the reprojection term"),
         ] {
             if !value.is_finite() {
                 return Err(TrainError::NonFinite { step, what: what.into() });
@@ -129,16 +132,18 @@ impl BatchLosses {
     }
 
     /// The total loss with the weights of `plan`: `lambda1 L_c + lambda2 L_z + lambda3
-    /// L_n + lambda_dn L_dn + lambda_pl L_pl + lambda_tv L_tv + lambda_dist L_dist +
-    /// lambda_occ L_occ + lambda_ori L_ori`.
+    /// L_n + lambda_dn L_dn + lambda_pl L_pl + lambda_rp L_rp + lambda_tv L_tv +
+    /// lambda_dist L_dist + lambda_occ L_occ + lambda_ori L_ori`.
     pub fn total(&self, plan: &StepPlan) -> f32 {
-        let (lambda_depth, lambda_normal, lambda_dn, lambda_pl) =
-            plan.reg.map_or((0.0, 0.0, 0.0, 0.0), |w| (w.lambda_depth, w.lambda_normal, w.lambda_depth_normal, w.lambda_planarity));
+        let (lambda_depth, lambda_normal, lambda_dn, lambda_pl, lambda_rp) = plan.reg.map_or((0.0, 0.0, 0.0, 0.0, 0.0), |w| {
+            (w.lambda_depth, w.lambda_normal, w.lambda_depth_normal, w.lambda_planarity, w.lambda_reprojection)
+        });
         plan.lambda_color * self.color
             + lambda_depth * self.depth
             + lambda_normal * self.normal
             + lambda_dn * self.depth_normal
             + lambda_pl * self.planarity
+            + lambda_rp * self.reprojection
             + plan.tv.unwrap_or(0.0) * self.tv
             + self.priors.lambda_distortion * self.distortion
             + self.priors.lambda_occlusion * self.occlusion
@@ -173,6 +178,9 @@ pub struct Pipeline {
     depth_normal: DepthNormal,
     depth_tv: DepthTv,
     planarity: Planarity,
+    /// The reprojection term when it is on, and each scene view's position in the
+    /// training list (what the term's per-ray source index is).
+    reprojection: Option<(Reprojection, Vec<u32>)>,
 }
 
 impl Pipeline {
@@ -194,6 +202,11 @@ impl Pipeline {
         let random_background = random_background
             .then(|| GpuBuffer::zeros(gpu, "target alpha", n_all as usize).map(|a| (a, scene.background.unwrap_or([1.0; 3]))))
             .transpose()?;
+        let reprojection = if config.reg.reprojection_on() && config.train.batch == BatchKind::Patches {
+            Some(reprojection_term(gpu, scene, n, config.reg.reprojection_blur)?)
+        } else {
+            None
+        };
         let mut renderer = Renderer::new(gpu, render_config)?;
         // The priors apply to every rendered ray of a batch, random-pose rays included.
         renderer.set_priors(config.priors.weights(n_all, scene.near, scene.far));
@@ -215,6 +228,7 @@ impl Pipeline {
             depth_normal: DepthNormal::new(gpu, n / 4)?,
             depth_tv: DepthTv::new(gpu, n_tv)?,
             planarity: Planarity::new(gpu, n_triplets)?,
+            reprojection,
         })
     }
 
@@ -319,6 +333,9 @@ impl Pipeline {
         if plan.reg.is_some() {
             self.edge_reg.pixel.write(gpu, &batch.reg);
         }
+        if let (Some((term, position)), Some(_)) = (&self.reprojection, self.reprojection_weight(plan)) {
+            term.source.write(gpu, &batch.views.iter().map(|&v| position[v as usize]).collect::<Vec<_>>());
+        }
         if let Some((alpha, _)) = &self.random_background {
             let mut a: Vec<f32> = batch.alpha.iter().map(|a| a.unwrap_or(1.0)).collect();
             a.resize(alpha.len(), 1.0);
@@ -372,6 +389,10 @@ impl Pipeline {
         if let Some(term) = self.planarity_term(plan) {
             self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, &term, scene.ndc.is_some());
         }
+        if let (Some((term, _)), Some(lambda)) = (&self.reprojection, self.reprojection_weight(plan)) {
+            let delta = model.config.reg.reprojection_delta;
+            term.record(&mut enc, rays_out, &bufs.rays, &self.targets, &self.d_rays, n, lambda, delta);
+        }
         if let Some(lambda) = plan.tv {
             let r = &model.config.regnerf;
             let acc_weight = r.acc_weight_for(scene);
@@ -390,6 +411,11 @@ impl Pipeline {
         plan.reg.and_then(|w| w.planarity_term()).filter(|_| self.n_triplets > 0)
     }
 
+    /// The reprojection term's weight at `plan`'s step, `None` when it does not run.
+    fn reprojection_weight(&self, plan: &StepPlan) -> Option<f32> {
+        plan.reg.map(|w| w.lambda_reprojection).filter(|&l| l > 0.0 && self.reprojection.is_some())
+    }
+
     /// The losses of the last batch and the sampler's counts, read back together (one
     /// wait for the GPU). `cut`: whether the sampler counted the rays' wanted samples
     /// (then the drop of cut rays ran).
@@ -404,6 +430,7 @@ impl Pipeline {
         let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
         let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
         let planarity = self.planarity_term(plan).map(|_| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
+        let reprojection = self.reprojection.as_ref().filter(|_| self.reprojection_weight(plan).is_some()).map(|(t, _)| batch.add(&t.ray_loss, n));
         let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
         let back = batch.read(gpu)?;
         let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);
@@ -421,11 +448,34 @@ impl Pipeline {
             orientation: p.orientation,
             depth_normal: depth_normal.map_or(0.0, |d| sum_terms(&back.get(&d))),
             planarity: planarity.map_or(0.0, |p| sum_terms(&back.get(&p))),
+            reprojection: reprojection.map_or(0.0, |r| sum_terms(&back.get(&r))),
             rays_dropped,
             samples: [counts[0], counts[1]],
             priors,
         })
     }
+}
+
+/// The reprojection term over batches of `n` photometric rays of `scene`, with the
+/// position of each scene view in the training list (`u32::MAX` for views that are not
+/// training views). A configuration error when the scene cannot be reprojected or its
+/// training images exceed what one storage binding of the device holds.
+fn reprojection_term(gpu: &Gpu, scene: &Scene, n: u32, blur: f32) -> Result<(Reprojection, Vec<u32>), TrainError> {
+    let error = |message: String| TrainError::Config { source_name: "config".into(), message };
+    let views = ReprojectionViews::pack(scene, blur).map_err(error)?;
+    let limit = gpu.limits().max_storage_buffer_binding_size;
+    if views.bytes() > limit {
+        return Err(error(format!(
+            "the reprojection term keeps every training image on the GPU ({} MB), more than one storage binding of this device holds ({} MB); train on fewer or smaller views, or set reg.lambda_reprojection = 0",
+            views.bytes() >> 20,
+            limit >> 20
+        )));
+    }
+    let mut position = vec![u32::MAX; scene.views.len()];
+    for (i, &v) in scene.split.train.iter().enumerate() {
+        position[v] = i as u32;
+    }
+    Ok((Reprojection::new(gpu, &views, n)?, position))
 }
 
 /// The list of live samples and its compaction, for batches of `capacity` samples.

@@ -54,6 +54,8 @@ pub struct PixelBatch {
     pub targets: Vec<[f32; 4]>,
     /// The pixel's alpha where its image has one.
     pub alpha: Vec<Option<f32>>,
+    /// The index into `Scene::views` of each ray's view.
+    pub views: Vec<u32>,
     /// Per ray `(e, z_scale)` for the edge-guided regularizers (patch batches only):
     /// `e` = 1 on non-edge pixels; `z_scale` turns the rendered ray parameter into the
     /// regularized depth ([`Ray::z_scale`]: along the camera axis in world space, 1 in NDC).
@@ -96,6 +98,7 @@ impl PixelBatch {
         self.targets.push([px[0], px[1], px[2], 1.0]);
         let w = scene.views[view].camera.width;
         self.alpha.push(scene.views[view].alpha.as_ref().map(|a| a[(y * w + x) as usize]));
+        self.views.push(view as u32);
         ray.z_scale
     }
 }

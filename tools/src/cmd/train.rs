@@ -350,6 +350,9 @@ impl RunObserver for Progress {
         if stats.lambda_planarity > 0.0 {
             reg += &format!(" Lpl {:.2e}", stats.loss_planarity);
         }
+        if stats.lambda_reprojection > 0.0 {
+            reg += &format!(" Lrp {:.2e}", stats.loss_reprojection);
+        }
         self.bar.set_message(format!(
             "Lc {:.5}{reg} psnr {:.2} | {:.0} samples/ray | {:.2} steps/s",
             stats.loss_color, ema, stats.samples_per_ray, steps_per_s

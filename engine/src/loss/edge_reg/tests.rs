@@ -36,7 +36,7 @@ fn random_patch_rays(n_patches: usize, seed: u64) -> Vec<PatchRay> {
 }
 
 fn weights(variant: RegVariant, depth_target: DepthTarget, depth_estimate: DepthEstimate, tau_depth: f32) -> EdgeRegWeights {
-    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0, depth_target, depth_estimate, lambda_depth_normal: 0.0, depth_normal_residual: Default::default(), depth_normal_coherence: 0.0, lambda_planarity: 0.0, planarity_scale: 0.0, planarity_coherence: 0.0 }
+    EdgeRegWeights { variant, lambda_depth: 0.7, lambda_normal: 1.3, tau_depth, tau_normal: 0.0, depth_target, depth_estimate, lambda_depth_normal: 0.0, depth_normal_residual: Default::default(), depth_normal_coherence: 0.0, lambda_planarity: 0.0, planarity_scale: 0.0, planarity_coherence: 0.0, lambda_reprojection: 0.0, reprojection_delta: 0.02 }
 }
 
 fn setting_of(w: &EdgeRegWeights) -> Setting {
@@ -198,7 +198,7 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget, depth_estimate: De
     batch.samples.write(&gpu, &samples);
     batch.count.write(&gpu, &[capacity, capacity]);
     let pixel: Vec<[f32; 2]> = (0..n_rays).map(|i| [if i % 7 == 3 { 0.0 } else { 1.0 }, 0.9 + 0.01 * i as f32]).collect();
-    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0, depth_target, depth_estimate, lambda_depth_normal: 0.0, depth_normal_residual: Default::default(), depth_normal_coherence: 0.0, lambda_planarity: 0.0, planarity_scale: 0.0, planarity_coherence: 0.0 };
+    let w = EdgeRegWeights { variant, lambda_depth: 1.0, lambda_normal: 1.0, tau_depth: 1e-4, tau_normal: 0.0, depth_target, depth_estimate, lambda_depth_normal: 0.0, depth_normal_residual: Default::default(), depth_normal_coherence: 0.0, lambda_planarity: 0.0, planarity_scale: 0.0, planarity_coherence: 0.0, lambda_reprojection: 0.0, reprojection_delta: 0.02 };
     let setting = setting_of(&w);
 
     // GPU: forward with normals, composite, losses, backward to the parameters.

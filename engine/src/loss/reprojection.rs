@@ -1,0 +1,361 @@
+//! Cross-view photometric consistency of the rendered depth: each training ray's depth,
+//! reprojected into the other training views, must land where those views show the
+//! ray's colour. Owner of `kernels/loss/reprojection.wgsl`, the GPU copy of the training
+//! images and cameras it reads ([`ReprojectionViews`]) and its `f64` reference
+//! ([`reference`]).
+//!
+//! The edge-guided terms shape a surface (flat, smooth, consistent with its normals)
+//! but do not say *where* it is: a floor lifted above its true height is as smooth as
+//! the true one. Three views do say where, wherever the colour varies (shadows, object
+//! boundaries, texture): this is the multi-view photometric constraint of MVS and of
+//! self-supervised depth (Monodepth2's per-pixel minimum over views), applied to the
+//! radiance field's rendered depth.
+//!
+//! # The loss
+//! For photometric ray `k` of view `s` with drop weight `w_k` (`target.w`, 0 for rays the
+//! sample capacity cut), rendered `depth` and `opacity`:
+//! ```text
+//! t   = clamp(depth / max(opacity, eps), t_min, t_max)      x = origin + t dir
+//! E_j = 1/3 sum_c rho(I_j(pi_j(x))_c - I_s(pi_s(x))_c)        rho(r) = sqrt(r^2 + delta^2) - delta
+//! L   = 1/n sum_k m_k min_{j != s, x inside j} E_j            m_k = w_k opacity_k  (constant)
+//! ```
+//! `pi_j` is view `j`'s pinhole projection ([`Camera::project`]); `I_j` its image,
+//! optionally blurred by a Gaussian of `reg.reprojection_blur` pixels, sampled
+//! bilinearly between pixel centres, and `x` counts as inside when its whole 2x2
+//! footprint lies in the image and it is in front of the camera. `I_s(pi_s(x))` is the
+//! ray's own pixel in the same (blurred) image: the same colour as its target without
+//! blur (to 8 bits), and a constant of `t` (every point of the ray projects there). The minimum over
+//! views is Monodepth2's answer to occlusion: a view that sees an occluder at `x` costs
+//! nothing while another sees the surface. A ray that lands inside no other view has no
+//! term. The Charbonnier `rho` is L1 away from 0 and smooth at it (`delta`, colour units).
+//! `m_k` holds the term off transparent rays (no depth to speak of) and is not
+//! differentiated: the term moves depth, never opacity for its own sake.
+//!
+//! # Gradients (added to `dL/d RayOutput`)
+//! With `q = R_j x + T_j` (camera frame, looking down `-z`, `z = -q_z`) and `dq = R_j dir`:
+//! ```text
+//! du/dt = fx (dq_x / z + q_x dq_z / z^2)      dv/dt = -fy (dq_y / z + q_y dq_z / z^2)
+//! dE/dt = 1/3 sum_c rho'(r_c) (dI_c/du du/dt + dI_c/dv dv/dt)       (the best view j)
+//! d depth   += lambda / n m_k dE/dt / A          A = max(opacity, eps)
+//! d opacity -= lambda / n m_k dE/dt t / A        (only where opacity > eps)
+//! ```
+//! where the clamp is inactive, else nothing (as [`super::depth_tv`]). The image
+//! derivative is that of the bilinear interpolant, so the term sees about a pixel of
+//! disparity around the current depth, or about the blur's width with a blur: a wider
+//! blur reaches farther at the price of detail.
+//!
+//! Invariants: the kernel only *adds* to `d_rays` (the photometric loss writes first);
+//! it reads rays `0 .. n` of the batch (the photometric rays), each with its source
+//! view's position in [`crate::data::Scene::split`]'s training list; only training
+//! images are on the GPU (never a test view). Cameras must be pinhole and rays in world
+//! space ([`ReprojectionViews::pack`] refuses NDC scenes and distorted lenses).
+
+use crate::data::{Camera, Scene};
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
+use crate::layout::{GpuRay, RayOutput};
+
+const SPEC: KernelSpec = KernelSpec {
+    file: "loss/reprojection.wgsl",
+    entry: "reprojection",
+    bindings: &[
+        Binding::Params,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadOnly,
+        Binding::ReadWrite,
+        Binding::ReadWrite,
+    ],
+};
+
+/// `eps` of the division by the opacity and of the camera-plane test.
+pub const OPACITY_EPS: f32 = f32::EPSILON;
+
+/// Words of a view's header in the packed array (`HEADER` in the kernel).
+pub const HEADER: usize = 20;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    n_rays: u32,
+    n_views: u32,
+    _pad0: u32,
+    _pad1: u32,
+    lambda: f32,
+    delta: f32,
+    eps: f32,
+    _pad2: f32,
+}
+
+/// The training views as the kernel reads them: one `u32` array of per-view headers
+/// (world-to-camera rows, intrinsics, size, pixel offset) followed by every view's
+/// pixels as RGBA8 (layout in `kernels/loss/reprojection.wgsl`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReprojectionViews {
+    pub words: Vec<u32>,
+    pub n_views: u32,
+}
+
+impl ReprojectionViews {
+    /// Packs the training views of `scene` in the order of `scene.split.train`, each
+    /// channel blurred by a Gaussian of `blur` pixels (0: none). Errors (a message saying
+    /// what to change) for NDC scenes, distorted lenses, views of fewer than 2x2 pixels
+    /// and scenes loaded without images.
+    pub fn pack(scene: &Scene, blur: f32) -> Result<ReprojectionViews, String> {
+        if scene.ndc.is_some() {
+            return Err("the reprojection term needs world-space rays, and this scene trains in NDC (forward-facing LLFF); set reg.lambda_reprojection = 0".into());
+        }
+        let views: Vec<_> = scene.train_views().collect();
+        let mut words = vec![0u32; HEADER * views.len()];
+        for (i, view) in views.iter().enumerate() {
+            let c = &view.camera;
+            if !c.lens.is_pinhole() {
+                return Err(format!(
+                    "the reprojection term projects through pinhole cameras, and view {} has a distorted lens; undistort the images or set reg.lambda_reprojection = 0",
+                    view.name
+                ));
+            }
+            let (w, h) = (view.image.width, view.image.height);
+            if w < 2 || h < 2 || view.image.data.len() != (w * h * 3) as usize {
+                return Err(format!("the reprojection term reads the training images, and view {} has none of at least 2x2 pixels", view.name));
+            }
+            let offset = u32::try_from(words.len()).map_err(|_| "the training images exceed 2^32 pixels".to_string())?;
+            words[i * HEADER..(i + 1) * HEADER].copy_from_slice(&header(c, w, h, offset));
+            let channels: Vec<Vec<f32>> = (0..3)
+                .map(|c| {
+                    let plane: Vec<f32> = view.image.data.iter().skip(c).step_by(3).copied().collect();
+                    crate::edges::gaussian_blur(&plane, w as usize, h as usize, blur)
+                })
+                .collect();
+            words.extend((0..(w * h) as usize).map(|i| pack_rgba8([channels[0][i], channels[1][i], channels[2][i]])));
+        }
+        Ok(ReprojectionViews { words, n_views: views.len() as u32 })
+    }
+
+    /// Bytes the packed views take on the GPU.
+    pub fn bytes(&self) -> u64 {
+        4 * self.words.len() as u64
+    }
+}
+
+/// A view's header: `[R | T]` of the world-to-camera transform row by row, `fx, fy, cx,
+/// cy` (floats as bits), then width, height, pixel offset and a pad word.
+fn header(c: &Camera, width: u32, height: u32, offset: u32) -> [u32; HEADER] {
+    let w2c = c.w2c();
+    let mut h = [0u32; HEADER];
+    for row in 0..3 {
+        let r = w2c.row(row);
+        for (col, v) in r.to_array().into_iter().enumerate() {
+            h[4 * row + col] = v.to_bits();
+        }
+    }
+    for (i, v) in [c.fx, c.fy, c.cx, c.cy].into_iter().enumerate() {
+        h[12 + i] = v.to_bits();
+    }
+    h[16] = width;
+    h[17] = height;
+    h[18] = offset;
+    h
+}
+
+/// `unpack4x8unorm`'s inverse: channels in `[0, 1]` rounded to 8 bits, alpha 1.
+fn pack_rgba8(rgb: [f32; 3]) -> u32 {
+    let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
+    q(rgb[0]) | (q(rgb[1]) << 8) | (q(rgb[2]) << 16) | (255 << 24)
+}
+
+/// The reprojection kernel, the packed training views, the per-ray source views and the
+/// per-ray loss terms.
+pub struct Reprojection {
+    kernel: std::sync::Arc<crate::gpu::Kernel>,
+    views: GpuBuffer<u32>,
+    n_views: u32,
+    /// Per photometric ray: its view's position in the training list, written by the caller.
+    pub source: GpuBuffer<u32>,
+    /// Per photometric ray: its term (normalized, lambda not included).
+    pub ray_loss: GpuBuffer<f32>,
+}
+
+impl Reprojection {
+    /// The term over batches of up to `max_rays` photometric rays, reading `views`.
+    pub fn new(gpu: &Gpu, views: &ReprojectionViews, max_rays: u32) -> Result<Self, GpuError> {
+        let n = max_rays.max(1) as usize;
+        Ok(Self {
+            kernel: gpu.kernel(&SPEC)?,
+            views: GpuBuffer::from_slice(gpu, "reprojection views", &views.words)?,
+            n_views: views.n_views,
+            source: GpuBuffer::zeros(gpu, "reprojection source views", n)?,
+            ray_loss: GpuBuffer::zeros(gpu, "reprojection ray losses", n)?,
+        })
+    }
+
+    /// Records the term over rays `0 .. n_rays` (`outs` rendered from `rays`, `targets`
+    /// their colours and drop weights, [`Reprojection::source`] filled), adding
+    /// `lambda` times its gradient into `d_rays`. `delta`: the Charbonnier scale.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &self,
+        enc: &mut Encoder,
+        outs: &GpuBuffer<RayOutput>,
+        rays: &GpuBuffer<GpuRay>,
+        targets: &GpuBuffer<[f32; 4]>,
+        d_rays: &GpuBuffer<RayOutput>,
+        n_rays: u32,
+        lambda: f32,
+        delta: f32,
+    ) {
+        let n = n_rays as usize;
+        assert!(outs.len() >= n && rays.len() >= n && targets.len() >= n && d_rays.len() >= n);
+        assert!(self.source.len() >= n, "reprojection buffers for {} rays", self.source.len());
+        let params = enc.params(&Params { n_rays, n_views: self.n_views, _pad0: 0, _pad1: 0, lambda, delta, eps: OPACITY_EPS, _pad2: 0.0 });
+        enc.dispatch_threads(
+            &self.kernel,
+            &[&params, &outs.buffer, &rays.buffer, &targets.buffer, &self.source.buffer, &self.views.buffer, &d_rays.buffer, &self.ray_loss.buffer],
+            n_rays,
+        );
+    }
+
+    /// The loss of the last launch over `n_rays` (waits for the GPU).
+    pub fn loss(&self, gpu: &Gpu, n_rays: u32) -> Result<f32, GpuError> {
+        super::sum_of_terms(gpu, &self.ray_loss, n_rays)
+    }
+}
+
+/// `f64` CPU reference of the loss and its gradients (tests; the kernel in plain Rust,
+/// reading the same packed views).
+pub mod reference {
+    use super::{HEADER, OPACITY_EPS, ReprojectionViews};
+
+    /// One photometric ray as the term sees it.
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct ReprojRay {
+        pub origin: [f64; 3],
+        pub dir: [f64; 3],
+        pub t_min: f64,
+        pub t_max: f64,
+        pub depth: f64,
+        pub opacity: f64,
+        /// The drop weight (`target.w`).
+        pub weight: f64,
+        /// Position of the ray's view in the training list.
+        pub source: u32,
+    }
+
+    fn f(views: &ReprojectionViews, v: usize, i: usize) -> f64 {
+        f32::from_bits(views.words[v * HEADER + i]) as f64
+    }
+
+    fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    }
+
+    /// View `v`'s camera-frame point `q`, its rate `dq` along `dir`, and the continuous
+    /// pixel coordinates of `x`.
+    fn project(views: &ReprojectionViews, v: usize, x: [f64; 3], dir: [f64; 3]) -> ([f64; 3], [f64; 3], [f64; 2]) {
+        let row = |r: usize| [f(views, v, 4 * r), f(views, v, 4 * r + 1), f(views, v, 4 * r + 2)];
+        let q = [0, 1, 2].map(|r| dot(row(r), x) + f(views, v, 4 * r + 3));
+        let dq = [0, 1, 2].map(|r| dot(row(r), dir));
+        let z = -q[2];
+        (q, dq, [f(views, v, 14) + f(views, v, 12) * q[0] / z, f(views, v, 15) - f(views, v, 13) * q[1] / z])
+    }
+
+    /// The bilinear interpolant of view `v` at `uv` (clamped to the pixel centres) per
+    /// channel: `(value, d/du, d/dv)`.
+    fn bilinear(views: &ReprojectionViews, v: usize, uv: [f64; 2]) -> [[f64; 3]; 3] {
+        let base = v * HEADER;
+        let (width, height, offset) = (views.words[base + 16] as usize, views.words[base + 17] as usize, views.words[base + 18] as usize);
+        let (px, py) = ((uv[0] - 0.5).clamp(0.0, (width - 1) as f64), (uv[1] - 0.5).clamp(0.0, (height - 1) as f64));
+        let (x0, y0) = ((px as usize).min(width - 2), (py as usize).min(height - 2));
+        let (a, b) = (px - x0 as f64, py - y0 as f64);
+        let c = |dx: usize, dy: usize| {
+            let p = views.words[offset + (y0 + dy) * width + x0 + dx];
+            [0, 8, 16].map(|s| ((p >> s) & 255) as f64 / 255.0)
+        };
+        let (c00, c10, c01, c11) = (c(0, 0), c(1, 0), c(0, 1), c(1, 1));
+        let mut out = [[0.0; 3]; 3];
+        for ch in 0..3 {
+            out[ch] = [
+                (1.0 - a) * (1.0 - b) * c00[ch] + a * (1.0 - b) * c10[ch] + (1.0 - a) * b * c01[ch] + a * b * c11[ch],
+                (1.0 - b) * (c10[ch] - c00[ch]) + b * (c11[ch] - c01[ch]),
+                (1.0 - a) * (c01[ch] - c00[ch]) + a * (c11[ch] - c10[ch]),
+            ];
+        }
+        out
+    }
+
+    /// The colour of view `v` where `x` projects (the ray's own colour when `v` is its view).
+    pub fn colour_at(views: &ReprojectionViews, v: usize, x: [f64; 3]) -> [f64; 3] {
+        bilinear(views, v, project(views, v, x, [0.0; 3]).2).map(|c| c[0])
+    }
+
+    /// `(E_v, dE_v/dt)` of view `v` at `x` moving along `dir` against the colour `own`,
+    /// `None` when `x` is not inside it.
+    pub fn view_term(views: &ReprojectionViews, v: usize, x: [f64; 3], dir: [f64; 3], own: [f64; 3], delta: f64) -> Option<(f64, f64)> {
+        let (q, dq, uv) = project(views, v, x, dir);
+        let (width, height) = (views.words[v * HEADER + 16] as f64, views.words[v * HEADER + 17] as f64);
+        let (z, px, py) = (-q[2], uv[0] - 0.5, uv[1] - 0.5);
+        if !(z > OPACITY_EPS as f64 && px >= 0.0 && py >= 0.0 && px < width - 1.0 && py < height - 1.0) {
+            return None;
+        }
+        let du_dt = f(views, v, 12) * (dq[0] / z + q[0] * dq[2] / (z * z));
+        let dv_dt = -f(views, v, 13) * (dq[1] / z + q[1] * dq[2] / (z * z));
+        let (mut err, mut d_err) = (0.0, 0.0);
+        for (ch, [value, d_du, d_dv]) in bilinear(views, v, uv).into_iter().enumerate() {
+            let r = value - own[ch];
+            let root = (r * r + delta * delta).sqrt();
+            err += (root - delta) / 3.0;
+            d_err += r / root * (d_du * du_dt + d_dv * dv_dt) / 3.0;
+        }
+        Some((err, d_err))
+    }
+
+    /// The loss of `rays` and per ray `(dL/d depth, dL/d opacity)` (lambda not included).
+    pub fn loss(views: &ReprojectionViews, rays: &[ReprojRay], delta: f64) -> (f64, Vec<(f64, f64)>) {
+        let (n, eps) = (rays.len() as f64, OPACITY_EPS as f64);
+        let mut total = 0.0;
+        let grads = rays
+            .iter()
+            .map(|r| {
+                let m = r.weight * r.opacity;
+                let a = r.opacity.max(eps);
+                let t_raw = r.depth / a;
+                let t = t_raw.clamp(r.t_min, r.t_max);
+                let x = [0, 1, 2].map(|i| r.origin[i] + t * r.dir[i]);
+                if !(m > 0.0 && r.source < views.n_views) {
+                    return (0.0, 0.0);
+                }
+                let own = colour_at(views, r.source as usize, x);
+                let best = (0..views.n_views as usize)
+                    .filter(|&v| v != r.source as usize)
+                    .filter_map(|v| view_term(views, v, x, r.dir, own, delta))
+                    .fold(None, |best: Option<(f64, f64)>, e| if best.is_none_or(|b| e.0 < b.0) { Some(e) } else { best });
+                let Some((err, d_err)) = best else { return (0.0, 0.0) };
+                total += m * err / n;
+                if t_raw <= r.t_min || t_raw >= r.t_max {
+                    return (0.0, 0.0);
+                }
+                let g = m * d_err / n;
+                (g / a, if r.opacity > eps { -g * t_raw / a } else { 0.0 })
+            })
+            .collect();
+        (total, grads)
+    }
+}
+
+#[cfg(test)]
+mod tests;
+
+/// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
+#[cfg(test)]
+mod wgsl_mirrors {
+    use super::*;
+
+    #[test]
+    fn rust_mirrors_match_their_wgsl_structs() {
+        crate::assert_wgsl_mirror!(Params, "loss/reprojection.wgsl", "Params", [n_rays, n_views, lambda, delta, eps]);
+        if let Err(e) = crate::gpu::kernel::tests::check_wgsl_u32_const("loss/reprojection.wgsl", "HEADER", HEADER as u32) {
+            panic!("{e}");
+        }
+    }
+}
