@@ -1,7 +1,8 @@
 // Cross-view photometric consistency of the rendered depth (owner:
 // engine/src/loss/reprojection.rs, which documents the math and holds the f64 reference).
 // One thread per photometric ray k < n_rays. The ray's depth given termination,
-//   t = clamp(depth / max(opacity, eps), t_min, t_max),   x = origin + t dir,
+//   t = clamp(depth / max(opacity, eps), t_min, t_max),   x = origin + t dir
+// (NDC rays: that point mapped back to world space),
 // is projected into every training view j other than the ray's own s = source[k]; where
 // it lands inside view j (in front of the camera, a whole bilinear footprint inside the
 // image), the view's colour there is compared with the ray's own colour, read from the
@@ -25,12 +26,16 @@
 struct Params {
     n_rays: u32,
     n_views: u32,
+    // 1: the rays are NeRF's NDC rays, mapped back to world space with ndc_near and
+    // ndc_scale = (-width / (2 focal_x), -height / (2 focal_y)).
+    ndc: u32,
     _pad0: u32,
-    _pad1: u32,
     lambda: f32,
     delta: f32,
     eps: f32,
-    _pad2: f32,
+    ndc_near: f32,
+    ndc_scale: vec2<f32>,
+    _pad1: vec2<f32>,
 }
 
 const HEADER: u32 = 20u;
@@ -99,6 +104,26 @@ fn bilinear(v: u32, uv: vec2<f32>) -> Bilinear {
     return Bilinear(rgb, d_du, d_dv);
 }
 
+// The world point at ray parameter t and its rate along t: origin + t dir, or for NDC
+// rays the inverse of NeRF's map (data/camera.rs NdcParams::ndc_to_world) of that point.
+struct RayPoint {
+    x: vec3<f32>,
+    dx: vec3<f32>,
+}
+
+fn ray_point(ray: Ray, t: f32) -> RayPoint {
+    let p = ray.origin + t * ray.dir;
+    if (params.ndc == 0u) {
+        return RayPoint(p, ray.dir);
+    }
+    let z = 2.0 * params.ndc_near / (p.z - 1.0);
+    let dz = -z / (p.z - 1.0) * ray.dir.z;
+    let s = params.ndc_scale;
+    let x = vec3<f32>(s.x * p.x * z, s.y * p.y * z, z);
+    let dx = vec3<f32>(s.x * (ray.dir.x * z + p.x * dz), s.y * (ray.dir.y * z + p.y * dz), dz);
+    return RayPoint(x, dx);
+}
+
 // What view v says about the point x (moving along dir as t grows) against the ray's
 // own colour: whether x lands inside it, the error E_v and dE_v/dt.
 struct ViewTerm {
@@ -146,16 +171,16 @@ fn reprojection(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     let a_hat = max(out.opacity, params.eps);
     let t_raw = out.depth / a_hat;
     let t = clamp(t_raw, ray.t_min, ray.t_max);
-    let x = ray.origin + t * ray.dir;
+    let point = ray_point(ray, t);
     var best = ViewTerm(false, 0.0, 0.0);
     if (m > 0.0 && own < n_views) {
         // The ray's own colour from the same (blurred) images: its view at its pixel.
-        let own_rgb = bilinear(own, project(own, x, ray.dir).uv).rgb;
+        let own_rgb = bilinear(own, project(own, point.x, point.dx).uv).rgb;
         for (var v = 0u; v < n_views; v++) {
             if (v == own) {
                 continue;
             }
-            let term = view_term(v, x, ray.dir, own_rgb);
+            let term = view_term(v, point.x, point.dx, own_rgb);
             if (term.ok && (!best.ok || term.err < best.err)) {
                 best = term;
             }

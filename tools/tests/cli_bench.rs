@@ -145,7 +145,7 @@ fn shipped_suites_parse() {
                 serde_json::from_str(&std::fs::read_to_string(dir.path().join("results.json")).unwrap()).unwrap();
             assert!(!rows.is_empty(), "{suite}");
             if suite == "geometry" {
-                assert_eq!(rows.len(), if quick { 14 } else { 21 }, "7 scenes x configs");
+                assert_eq!(rows.len(), if quick { 14 } else { 28 }, "7 scenes x configs");
             }
             if suite == "dense-walls" {
                 assert_eq!(rows.len(), 7 * 3 + 3 * 5, "3 configs on every scene, 5 on the forward-facing ones");

@@ -32,7 +32,8 @@
 //! differentiated: the term moves depth, never opacity for its own sake.
 //!
 //! # Gradients (added to `dL/d RayOutput`)
-//! With `q = R_j x + T_j` (camera frame, looking down `-z`, `z = -q_z`) and `dq = R_j dir`:
+//! With `q = R_j x + T_j` (camera frame, looking down `-z`, `z = -q_z`) and `dq = R_j
+//! dx/dt` (`dx/dt = dir` in world space):
 //! ```text
 //! du/dt = fx (dq_x / z + q_x dq_z / z^2)      dv/dt = -fy (dq_y / z + q_y dq_z / z^2)
 //! dE/dt = 1/3 sum_c rho'(r_c) (dI_c/du du/dt + dI_c/dv dv/dt)       (the best view j)
@@ -47,10 +48,12 @@
 //! Invariants: the kernel only *adds* to `d_rays` (the photometric loss writes first);
 //! it reads rays `0 .. n` of the batch (the photometric rays), each with its source
 //! view's position in [`crate::data::Scene::split`]'s training list; only training
-//! images are on the GPU (never a test view). Cameras must be pinhole and rays in world
-//! space ([`ReprojectionViews::pack`] refuses NDC scenes and distorted lenses).
+//! images are on the GPU (never a test view). Cameras must be pinhole
+//! ([`ReprojectionViews::pack`] refuses distorted lenses). NDC rays (forward-facing
+//! LLFF scenes) work too: their point at `t` is mapped back to world space
+//! ([`NdcParams::ndc_to_world`], differentiated along `t`) before it is projected.
 
-use crate::data::{Camera, Scene};
+use crate::data::{Camera, NdcParams, Scene};
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::{GpuRay, RayOutput};
 
@@ -80,12 +83,14 @@ pub const HEADER: usize = 20;
 struct Params {
     n_rays: u32,
     n_views: u32,
+    ndc: u32,
     _pad0: u32,
-    _pad1: u32,
     lambda: f32,
     delta: f32,
     eps: f32,
-    _pad2: f32,
+    ndc_near: f32,
+    ndc_scale: [f32; 2],
+    _pad1: [f32; 2],
 }
 
 /// The training views as the kernel reads them: one `u32` array of per-view headers
@@ -95,17 +100,17 @@ struct Params {
 pub struct ReprojectionViews {
     pub words: Vec<u32>,
     pub n_views: u32,
+    /// The scene's NDC mapping when its rays are NDC rays (the term maps their points
+    /// back to world space).
+    pub ndc: Option<NdcParams>,
 }
 
 impl ReprojectionViews {
     /// Packs the training views of `scene` in the order of `scene.split.train`, each
     /// channel blurred by a Gaussian of `blur` pixels (0: none). Errors (a message saying
-    /// what to change) for NDC scenes, distorted lenses, views of fewer than 2x2 pixels
-    /// and scenes loaded without images.
+    /// what to change) for distorted lenses, views of fewer than 2x2 pixels and scenes
+    /// loaded without images.
     pub fn pack(scene: &Scene, blur: f32) -> Result<ReprojectionViews, String> {
-        if scene.ndc.is_some() {
-            return Err("the reprojection term needs world-space rays, and this scene trains in NDC (forward-facing LLFF); set reg.lambda_reprojection = 0".into());
-        }
         let views: Vec<_> = scene.train_views().collect();
         let mut words = vec![0u32; HEADER * views.len()];
         for (i, view) in views.iter().enumerate() {
@@ -130,7 +135,7 @@ impl ReprojectionViews {
                 .collect();
             words.extend((0..(w * h) as usize).map(|i| pack_rgba8([channels[0][i], channels[1][i], channels[2][i]])));
         }
-        Ok(ReprojectionViews { words, n_views: views.len() as u32 })
+        Ok(ReprojectionViews { words, n_views: views.len() as u32, ndc: scene.ndc })
     }
 
     /// Bytes the packed views take on the GPU.
@@ -159,6 +164,12 @@ fn header(c: &Camera, width: u32, height: u32, offset: u32) -> [u32; HEADER] {
     h
 }
 
+/// The near plane and the per-axis scale `-size / (2 focal)` of NDC's inverse map
+/// ([`NdcParams::ndc_to_world`]); zeros without NDC.
+fn ndc_map(ndc: Option<NdcParams>) -> (f32, [f32; 2]) {
+    ndc.map_or((0.0, [0.0; 2]), |n| (n.near, [-n.width / (2.0 * n.focal_x), -n.height / (2.0 * n.focal_y)]))
+}
+
 /// `unpack4x8unorm`'s inverse: channels in `[0, 1]` rounded to 8 bits, alpha 1.
 fn pack_rgba8(rgb: [f32; 3]) -> u32 {
     let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
@@ -171,6 +182,7 @@ pub struct Reprojection {
     kernel: std::sync::Arc<crate::gpu::Kernel>,
     views: GpuBuffer<u32>,
     n_views: u32,
+    ndc: Option<NdcParams>,
     /// Per photometric ray: its view's position in the training list, written by the caller.
     pub source: GpuBuffer<u32>,
     /// Per photometric ray: its term (normalized, lambda not included).
@@ -185,6 +197,7 @@ impl Reprojection {
             kernel: gpu.kernel(&SPEC)?,
             views: GpuBuffer::from_slice(gpu, "reprojection views", &views.words)?,
             n_views: views.n_views,
+            ndc: views.ndc,
             source: GpuBuffer::zeros(gpu, "reprojection source views", n)?,
             ray_loss: GpuBuffer::zeros(gpu, "reprojection ray losses", n)?,
         })
@@ -208,7 +221,19 @@ impl Reprojection {
         let n = n_rays as usize;
         assert!(outs.len() >= n && rays.len() >= n && targets.len() >= n && d_rays.len() >= n);
         assert!(self.source.len() >= n, "reprojection buffers for {} rays", self.source.len());
-        let params = enc.params(&Params { n_rays, n_views: self.n_views, _pad0: 0, _pad1: 0, lambda, delta, eps: OPACITY_EPS, _pad2: 0.0 });
+        let (ndc_near, ndc_scale) = ndc_map(self.ndc);
+        let params = enc.params(&Params {
+            n_rays,
+            n_views: self.n_views,
+            ndc: self.ndc.is_some() as u32,
+            _pad0: 0,
+            lambda,
+            delta,
+            eps: OPACITY_EPS,
+            ndc_near,
+            ndc_scale,
+            _pad1: [0.0; 2],
+        });
         enc.dispatch_threads(
             &self.kernel,
             &[&params, &outs.buffer, &rays.buffer, &targets.buffer, &self.source.buffer, &self.views.buffer, &d_rays.buffer, &self.ray_loss.buffer],
@@ -225,7 +250,7 @@ impl Reprojection {
 /// `f64` CPU reference of the loss and its gradients (tests; the kernel in plain Rust,
 /// reading the same packed views).
 pub mod reference {
-    use super::{HEADER, OPACITY_EPS, ReprojectionViews};
+    use super::{HEADER, OPACITY_EPS, ReprojectionViews, ndc_map};
 
     /// One photometric ray as the term sees it.
     #[derive(Clone, Copy, Debug, Default)]
@@ -310,6 +335,20 @@ pub mod reference {
         Some((err, d_err))
     }
 
+    /// The world point at parameter `t` of `r` and its rate along `t` (NDC rays mapped
+    /// back to world space).
+    pub fn ray_point(views: &ReprojectionViews, r: &ReprojRay, t: f64) -> ([f64; 3], [f64; 3]) {
+        let p = [0, 1, 2].map(|i| r.origin[i] + t * r.dir[i]);
+        if views.ndc.is_none() {
+            return (p, r.dir);
+        }
+        let (near, [sx, sy]) = ndc_map(views.ndc);
+        let (near, sx, sy) = (near as f64, sx as f64, sy as f64);
+        let z = 2.0 * near / (p[2] - 1.0);
+        let dz = -z / (p[2] - 1.0) * r.dir[2];
+        ([sx * p[0] * z, sy * p[1] * z, z], [sx * (r.dir[0] * z + p[0] * dz), sy * (r.dir[1] * z + p[1] * dz), dz])
+    }
+
     /// The loss of `rays` and per ray `(dL/d depth, dL/d opacity)` (lambda not included).
     pub fn loss(views: &ReprojectionViews, rays: &[ReprojRay], delta: f64) -> (f64, Vec<(f64, f64)>) {
         let (n, eps) = (rays.len() as f64, OPACITY_EPS as f64);
@@ -321,14 +360,14 @@ pub mod reference {
                 let a = r.opacity.max(eps);
                 let t_raw = r.depth / a;
                 let t = t_raw.clamp(r.t_min, r.t_max);
-                let x = [0, 1, 2].map(|i| r.origin[i] + t * r.dir[i]);
+                let (x, dx) = ray_point(views, r, t);
                 if !(m > 0.0 && r.source < views.n_views) {
                     return (0.0, 0.0);
                 }
                 let own = colour_at(views, r.source as usize, x);
                 let best = (0..views.n_views as usize)
                     .filter(|&v| v != r.source as usize)
-                    .filter_map(|v| view_term(views, v, x, r.dir, own, delta))
+                    .filter_map(|v| view_term(views, v, x, dx, own, delta))
                     .fold(None, |best: Option<(f64, f64)>, e| if best.is_none_or(|b| e.0 < b.0) { Some(e) } else { best });
                 let Some((err, d_err)) = best else { return (0.0, 0.0) };
                 total += m * err / n;
@@ -353,7 +392,7 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "loss/reprojection.wgsl", "Params", [n_rays, n_views, lambda, delta, eps]);
+        crate::assert_wgsl_mirror!(Params, "loss/reprojection.wgsl", "Params", [n_rays, n_views, ndc, lambda, delta, eps, ndc_near, ndc_scale]);
         if let Err(e) = crate::gpu::kernel::tests::check_wgsl_u32_const("loss/reprojection.wgsl", "HEADER", HEADER as u32) {
             panic!("{e}");
         }

@@ -20,8 +20,8 @@
 //!   -> sampler (occupancy grid + BVH) -> samples -> field forward (+ analytic normals
 //!   when L_n, L_dn or the orientation prior is on) -> composite -> photometric loss
 //!   L_c (+ edge-guided L_z, L_n, L_dn on the patches, + the planarity L_pl on the
-//!   triplets, + depth TV on the random-pose patches; rays cut by the sample capacity
-//!   dropped) -> composite backward (+ the distortion, occlusion and orientation
+//!   triplets, + the cross-view reprojection L_rp on the patches' rays, + depth TV on
+//!   the random-pose patches; rays cut by the sample capacity dropped) -> composite backward (+ the distortion, occlusion and orientation
 //!   priors)
 //!   -> loss readbacks
 //! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
@@ -29,9 +29,9 @@
 //! Trainer: grad norm / NaN check / clip -> Adam (GPU) -> StepStats
 //! ```
 //! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_dn L_dn +
-//! lambda_pl L_pl + lambda_tv L_tv` plus the weighted priors (see
+//! lambda_pl L_pl + lambda_rp L_rp + lambda_tv L_tv` plus the weighted priors (see
 //! [`crate::loss::edge_reg`], [`crate::loss::depth_normal`],
-//! [`crate::loss::planarity`], [`crate::loss::depth_tv`],
+//! [`crate::loss::planarity`], [`crate::loss::reprojection`], [`crate::loss::depth_tv`],
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.

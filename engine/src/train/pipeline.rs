@@ -19,7 +19,8 @@
 //!   sampler (Model::sample) -> field forward (+ analytic normals when L_n is on)
 //!   one encoder: drop of capacity-cut rays -> composite forward -> photometric L_c
 //!     (targets with alpha onto the rendered random backgrounds; writes dL/d RayOutput)
-//!     -> edge-guided L_z, L_n, the planarity term and RegNeRF's depth TV (add)
+//!     -> edge-guided L_z, L_n, the planarity term, the cross-view reprojection
+//!     (its rays' training views written as their source) and RegNeRF's depth TV (add)
 //!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
 //!   one readback (one wait): the losses, rays dropped and the sampler's counts -> BatchLosses

@@ -6,7 +6,7 @@
 
 use super::reference::{ReprojRay, colour_at, loss, view_term};
 use super::*;
-use crate::data::{Lens, LoadOptions, NdcParams};
+use crate::data::{Lens, LoadOptions};
 use crate::gpu::test_gpu;
 use crate::rng::SplitMix64;
 use crate::train::rays::to_gpu_ray;
@@ -102,9 +102,6 @@ fn packed_views_blur_each_channel() {
 #[test]
 fn packing_refuses_what_it_cannot_project() {
     let scene = three_view_creases();
-    let mut ndc = scene.clone();
-    ndc.ndc = Some(NdcParams { focal_x: 100.0, focal_y: 100.0, width: 128.0, height: 128.0, near: 1.0 });
-    assert!(ReprojectionViews::pack(&ndc, 0.0).unwrap_err().contains("NDC"));
     let mut distorted = scene.clone();
     let v = distorted.split.train[1];
     distorted.views[v].camera.lens = Lens::OpenCv { k: [0.1, 0.0, 0.0, 0.0], p: [0.0; 2] };
@@ -117,7 +114,6 @@ fn packing_refuses_what_it_cannot_project() {
 
 #[test]
 fn reprojection_kernel_matches_reference() {
-    let gpu = test_gpu(false);
     let scene = three_view_creases();
     let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
     let mut rays = rays_at_depth(&scene, 512, 0.08, 11);
@@ -128,12 +124,19 @@ fn reprojection_kernel_matches_reference() {
     rays[20].depth = 0.0;
     rays[21].weight = 0.0;
     let delta = 0.02;
-    let (want, grads) = loss(&views, &rays, delta);
+    let (_, grads) = loss(&views, &rays, delta);
     let with_gradient = grads.iter().filter(|g| g.0 != 0.0).count();
     eprintln!("{with_gradient} of {} rays with a gradient", rays.len());
     assert!(with_gradient > 200, "{with_gradient} rays with a gradient: most should land on colour changes");
     assert_eq!((grads[3], grads[10], grads[20], grads[21]), ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)));
 
+    assert_kernel_matches_reference(&views, &rays, delta, "creases");
+}
+
+/// The kernel's loss and added gradients against the reference's on `rays`.
+fn assert_kernel_matches_reference(views: &ReprojectionViews, rays: &[ReprojRay], delta: f64, what: &str) {
+    let gpu = test_gpu(false);
+    let (want, grads) = loss(views, rays, delta);
     let outs: Vec<RayOutput> = rays.iter().map(|r| RayOutput { depth: r.depth as f32, opacity: r.opacity as f32, ..Default::default() }).collect();
     let ins: Vec<GpuRay> = rays
         .iter()
@@ -141,7 +144,7 @@ fn reprojection_kernel_matches_reference() {
         .collect();
     // The kernel reads only the drop weight of the targets (the colour comes from the views).
     let targets: Vec<[f32; 4]> = rays.iter().map(|r| [0.3, 0.6, 0.9, r.weight as f32]).collect();
-    let term = Reprojection::new(&gpu, &views, rays.len() as u32).unwrap();
+    let term = Reprojection::new(&gpu, views, rays.len() as u32).unwrap();
     term.source.write(&gpu, &rays.iter().map(|r| r.source).collect::<Vec<_>>());
     let prior: Vec<RayOutput> = (0..rays.len()).map(|i| RayOutput { rgb: [0.5; 3], depth: 0.25, opacity: 0.01 * i as f32, ..Default::default() }).collect();
     let d = GpuBuffer::from_slice(&gpu, "d", &prior).unwrap();
@@ -155,26 +158,31 @@ fn reprojection_kernel_matches_reference() {
     term.record(&mut enc, &outs, &ins, &targets, &d, rays.len() as u32, lambda, delta as f32);
     enc.submit();
     let got = term.loss(&gpu, rays.len() as u32).unwrap() as f64;
-    assert!((got - want).abs() <= 1e-4 * want, "loss {got} vs {want}");
+    assert!((got - want).abs() <= 1e-4 * want, "{what}: loss {got} vs {want}");
     let d = d.read(&gpu).unwrap();
     // f32 projections land within ~1e-5 pixel of the f64 ones; the bilinear derivative
     // is continuous in between pixel centres, so the gradients agree to ~1e-4.
-    crate::loss::test_support::assert_added_depth_opacity_grads(&d, &prior, 0, &grads, lambda as f64, (2e-3, 0.0), "reprojection");
+    crate::loss::test_support::assert_added_depth_opacity_grads(&d, &prior, 0, &grads, lambda as f64, (2e-3, 0.0), what);
 }
 
 #[test]
 fn reprojection_reference_matches_finite_differences() {
     let scene = three_view_creases();
     let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
-    let rays = rays_at_depth(&scene, 64, 0.08, 5);
+    assert_reference_matches_finite_differences(&views, &rays_at_depth(&scene, 64, 0.08, 5), "creases");
+}
+
+/// The reference's gradients against central differences of its loss, away from the
+/// kinks (bilinear cell boundaries, changes of best view); at least 120 of the 128.
+fn assert_reference_matches_finite_differences(views: &ReprojectionViews, rays: &[ReprojRay], what: &str) {
     let delta = 0.02;
-    let (_, grads) = loss(&views, &rays, delta);
+    let (_, grads) = loss(views, rays, delta);
     let h = 1e-7;
     let mut checked = 0;
     for k in 0..rays.len() {
         for which in 0..2 {
             let bump = |s: f64| {
-                let mut p = rays.clone();
+                let mut p = rays.to_vec();
                 if which == 0 {
                     p[k].depth += s;
                 } else {
@@ -183,7 +191,7 @@ fn reprojection_reference_matches_finite_differences() {
                     p[k].opacity += s;
                     p[k].weight = rays[k].weight * rays[k].opacity / p[k].opacity;
                 }
-                loss(&views, &p, delta).0
+                loss(views, &p, delta).0
             };
             let (fwd, bwd) = ((bump(h) - bump(0.0)) / h, (bump(0.0) - bump(-h)) / h);
             // A bilinear cell boundary or a change of best view inside the step: no derivative.
@@ -192,11 +200,68 @@ fn reprojection_reference_matches_finite_differences() {
             }
             let fd = 0.5 * (fwd + bwd);
             let got = if which == 0 { grads[k].0 } else { grads[k].1 };
-            assert!((fd - got).abs() < 1e-4 * fd.abs().max(1e-4), "ray {k} {which}: fd {fd} vs {got}");
+            assert!((fd - got).abs() < 1e-4 * fd.abs().max(1e-4), "{what} ray {k} {which}: fd {fd} vs {got}");
             checked += 1;
         }
     }
-    assert!(checked >= 120, "only {checked} of 128 derivatives away from a kink");
+    assert!(checked >= 120 && rays.len() == 64, "{what}: only {checked} of 128 derivatives away from a kink");
+}
+
+/// `n` rays of random pixels of fern's 3 training views (NDC rays) at random NDC depths
+/// in `[0.3, 0.95]`, `None` without the data.
+fn fern_rays(n: usize, seed: u64) -> Option<(Scene, Vec<ReprojRay>)> {
+    let dir = crate::data::real_scene_dir("llff/fern")?;
+    let scene = Scene::load(&dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+    assert!(scene.ndc.is_some());
+    let mut rng = SplitMix64::new(seed);
+    let (w, h) = scene.image_size();
+    let rays = (0..n)
+        .map(|_| {
+            let source = rng.below(3) as usize;
+            let (x, y) = (rng.below(w as u64) as u32, rng.below(h as u64) as u32);
+            let r = to_gpu_ray(&scene, &scene.ray(scene.split.train[source], x, y));
+            let opacity = 0.5 + 0.25 * (rng.uniform(1.0) + 1.0);
+            ReprojRay {
+                origin: r.origin.map(f64::from),
+                dir: r.dir.map(f64::from),
+                t_min: r.t_min as f64,
+                t_max: r.t_max as f64,
+                depth: opacity * (0.625 + 0.325 * rng.uniform(1.0)),
+                opacity,
+                weight: 1.0,
+                source: source as u32,
+            }
+        })
+        .collect();
+    Some((scene, rays))
+}
+
+#[test]
+fn ndc_rays_reproject_through_world_space() {
+    let Some((scene, rays)) = fern_rays(64, 3) else { return };
+    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let ndc = scene.ndc.unwrap();
+    for r in &rays {
+        let t = r.depth / r.opacity;
+        let (x, dx) = super::reference::ray_point(&views, r, t);
+        // NeRF's inverse map of the NDC point, and its derivative along t.
+        let p = glam::DVec3::from(r.origin) + t * glam::DVec3::from(r.dir);
+        let want = ndc.ndc_to_world(p.as_vec3()).as_dvec3();
+        assert!((glam::DVec3::from(x) - want).length() < 1e-4 * want.length(), "{x:?} vs {want}");
+        let h = 1e-6;
+        let fd = (glam::DVec3::from(super::reference::ray_point(&views, r, t + h).0) - glam::DVec3::from(super::reference::ray_point(&views, r, t - h).0)) / (2.0 * h);
+        assert!((glam::DVec3::from(dx) - fd).length() < 1e-5 * fd.length(), "{dx:?} vs {fd}");
+        // The point lies on the ray of its pixel: its own view sees it at that pixel.
+        let c = &scene.views[scene.split.train[r.source as usize]].camera;
+        let (px, _) = c.project(x.map(|v| v as f32).into()).unwrap();
+        let back = to_gpu_ray(&scene, &scene.ray(scene.split.train[r.source as usize], px.x as u32, px.y as u32));
+        assert!((glam::Vec3::from(back.dir) - glam::Vec3::from(r.dir.map(|v| v as f32))).length() < 1e-3, "pixel {px}");
+    }
+    let (_, grads) = loss(&views, &rays, 0.02);
+    assert!(grads.iter().filter(|g| g.0 != 0.0).count() > 32, "fern's rays land in the other views");
+    assert_reference_matches_finite_differences(&views, &rays, "fern (NDC)");
+    let (_, rays) = fern_rays(512, 4).unwrap();
+    assert_kernel_matches_reference(&views, &rays, 0.02, "fern (NDC)");
 }
 
 #[test]
