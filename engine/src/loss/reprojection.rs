@@ -19,7 +19,7 @@
 //! E_j = 1/3 sum_c rho(I_j(pi_j(x))_c - I_s(pi_s(x))_c)        rho(r) = sqrt(r^2 + delta^2) - delta
 //! L   = 1/n sum_k m_k min_{j != s, x inside j} E_j            m_k = w_k opacity_k  (constant)
 //! ```
-//! `pi_j` is view `j`'s pinhole projection ([`Camera::project`]); `I_j` its image,
+//! `pi_j` is view `j`'s pinhole projection (`Camera::project` of `crate::data`); `I_j` its image,
 //! optionally blurred by a Gaussian of `reg.reprojection_blur` pixels, sampled
 //! bilinearly between pixel centres, and `x` counts as inside when its whole 2x2
 //! footprint lies in the image and it is in front of the camera. `I_s(pi_s(x))` is the
@@ -47,13 +47,13 @@
 //!
 //! Invariants: the kernel only *adds* to `d_rays` (the photometric loss writes first);
 //! it reads rays `0 .. n` of the batch (the photometric rays), each with its source
-//! view's position in [`crate::data::Scene::split`]'s training list; only training
-//! images are on the GPU (never a test view). Cameras must be pinhole
-//! ([`ReprojectionViews::pack`] refuses distorted lenses). NDC rays (forward-facing
-//! LLFF scenes) work too: their point at `t` is mapped back to world space
-//! ([`NdcParams::ndc_to_world`], differentiated along `t`) before it is projected.
+//! view's position in the scene's training list; only training
+//! images are on the GPU (never a test view; `crate::train::reprojection_views` packs
+//! them and refuses distorted lenses: the cameras are pinhole). NDC rays
+//! (forward-facing LLFF scenes) work too: their point at `t` is mapped back to world
+//! space (`NdcParams::ndc_to_world` of `crate::data`, differentiated along `t`) before
+//! it is projected.
 
-use crate::data::{Camera, NdcParams, Scene};
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::{GpuRay, RayOutput};
 
@@ -93,49 +93,64 @@ struct Params {
     _pad1: [f32; 2],
 }
 
+/// NeRF's NDC map as the term inverts it (`NdcParams::ndc_to_world` in `crate::data`):
+/// the near plane and the per-axis scale `-size / (2 focal)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NdcMap {
+    pub near: f32,
+    pub scale: [f32; 2],
+}
+
+/// One training view to pack: its world-to-camera rows `[R | T]`, pinhole intrinsics
+/// (pixels) and its RGB pixels (row-major, `width * height * 3` floats in `[0, 1]`).
+pub struct ViewToPack<'a> {
+    pub w2c: [[f32; 4]; 3],
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub width: u32,
+    pub height: u32,
+    pub rgb: &'a [f32],
+}
+
 /// The training views as the kernel reads them: one `u32` array of per-view headers
 /// (world-to-camera rows, intrinsics, size, pixel offset) followed by every view's
-/// pixels as RGBA8 (layout in `kernels/loss/reprojection.wgsl`).
+/// pixels as RGBA8 (layout in `kernels/loss/reprojection.wgsl`). Built by
+/// `crate::train::reprojection_views` from a scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReprojectionViews {
     pub words: Vec<u32>,
     pub n_views: u32,
-    /// The scene's NDC mapping when its rays are NDC rays (the term maps their points
-    /// back to world space).
-    pub ndc: Option<NdcParams>,
+    /// The NDC map when the rays are NDC rays (the term maps their points back to world
+    /// space).
+    pub ndc: Option<NdcMap>,
 }
 
 impl ReprojectionViews {
-    /// Packs the training views of `scene` in the order of `scene.split.train`, each
-    /// channel blurred by a Gaussian of `blur` pixels (0: none). Errors (a message saying
-    /// what to change) for distorted lenses, views of fewer than 2x2 pixels and scenes
-    /// loaded without images.
-    pub fn pack(scene: &Scene, blur: f32) -> Result<ReprojectionViews, String> {
-        let views: Vec<_> = scene.train_views().collect();
+    /// Packs `views` (in the order of the training list the rays' source indices refer
+    /// to). Panics on a view smaller than 2x2 pixels or whose pixels do not match its
+    /// size (the caller checks what users can get wrong).
+    pub fn pack(views: &[ViewToPack<'_>], ndc: Option<NdcMap>) -> ReprojectionViews {
         let mut words = vec![0u32; HEADER * views.len()];
-        for (i, view) in views.iter().enumerate() {
-            let c = &view.camera;
-            if !c.lens.is_pinhole() {
-                return Err(format!(
-                    "the reprojection term projects through pinhole cameras, and view {} has a distorted lens; undistort the images or set reg.lambda_reprojection = 0",
-                    view.name
-                ));
+        for (i, v) in views.iter().enumerate() {
+            assert!(v.width >= 2 && v.height >= 2 && v.rgb.len() == (v.width * v.height * 3) as usize, "a view of at least 2x2 pixels");
+            let offset = u32::try_from(words.len()).expect("the training images fit 2^32 pixels");
+            let h = &mut words[i * HEADER..(i + 1) * HEADER];
+            for (row, r) in v.w2c.iter().enumerate() {
+                for (col, x) in r.iter().enumerate() {
+                    h[4 * row + col] = x.to_bits();
+                }
             }
-            let (w, h) = (view.image.width, view.image.height);
-            if w < 2 || h < 2 || view.image.data.len() != (w * h * 3) as usize {
-                return Err(format!("the reprojection term reads the training images, and view {} has none of at least 2x2 pixels", view.name));
+            for (k, x) in [v.fx, v.fy, v.cx, v.cy].into_iter().enumerate() {
+                h[12 + k] = x.to_bits();
             }
-            let offset = u32::try_from(words.len()).map_err(|_| "the training images exceed 2^32 pixels".to_string())?;
-            words[i * HEADER..(i + 1) * HEADER].copy_from_slice(&header(c, w, h, offset));
-            let channels: Vec<Vec<f32>> = (0..3)
-                .map(|c| {
-                    let plane: Vec<f32> = view.image.data.iter().skip(c).step_by(3).copied().collect();
-                    crate::edges::gaussian_blur(&plane, w as usize, h as usize, blur)
-                })
-                .collect();
-            words.extend((0..(w * h) as usize).map(|i| pack_rgba8([channels[0][i], channels[1][i], channels[2][i]])));
+            h[16] = v.width;
+            h[17] = v.height;
+            h[18] = offset;
+            words.extend(v.rgb.chunks_exact(3).map(|p| pack_rgba8([p[0], p[1], p[2]])));
         }
-        Ok(ReprojectionViews { words, n_views: views.len() as u32, ndc: scene.ndc })
+        ReprojectionViews { words, n_views: views.len() as u32, ndc }
     }
 
     /// Bytes the packed views take on the GPU.
@@ -144,30 +159,9 @@ impl ReprojectionViews {
     }
 }
 
-/// A view's header: `[R | T]` of the world-to-camera transform row by row, `fx, fy, cx,
-/// cy` (floats as bits), then width, height, pixel offset and a pad word.
-fn header(c: &Camera, width: u32, height: u32, offset: u32) -> [u32; HEADER] {
-    let w2c = c.w2c();
-    let mut h = [0u32; HEADER];
-    for row in 0..3 {
-        let r = w2c.row(row);
-        for (col, v) in r.to_array().into_iter().enumerate() {
-            h[4 * row + col] = v.to_bits();
-        }
-    }
-    for (i, v) in [c.fx, c.fy, c.cx, c.cy].into_iter().enumerate() {
-        h[12 + i] = v.to_bits();
-    }
-    h[16] = width;
-    h[17] = height;
-    h[18] = offset;
-    h
-}
-
-/// The near plane and the per-axis scale `-size / (2 focal)` of NDC's inverse map
-/// ([`NdcParams::ndc_to_world`]); zeros without NDC.
-fn ndc_map(ndc: Option<NdcParams>) -> (f32, [f32; 2]) {
-    ndc.map_or((0.0, [0.0; 2]), |n| (n.near, [-n.width / (2.0 * n.focal_x), -n.height / (2.0 * n.focal_y)]))
+/// The near plane and scale of NDC's inverse map; zeros without NDC.
+fn ndc_map(ndc: Option<NdcMap>) -> (f32, [f32; 2]) {
+    ndc.map_or((0.0, [0.0; 2]), |n| (n.near, n.scale))
 }
 
 /// `unpack4x8unorm`'s inverse: channels in `[0, 1]` rounded to 8 bits, alpha 1.
@@ -182,7 +176,7 @@ pub struct Reprojection {
     kernel: std::sync::Arc<crate::gpu::Kernel>,
     views: GpuBuffer<u32>,
     n_views: u32,
-    ndc: Option<NdcParams>,
+    ndc: Option<NdcMap>,
     /// Per photometric ray: its view's position in the training list, written by the caller.
     pub source: GpuBuffer<u32>,
     /// Per photometric ray: its term (normalized, lambda not included).
@@ -381,9 +375,6 @@ pub mod reference {
         (total, grads)
     }
 }
-
-#[cfg(test)]
-mod tests;
 
 /// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).
 #[cfg(test)]

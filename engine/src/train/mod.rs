@@ -67,6 +67,7 @@ pub mod profile;
 pub mod random_poses;
 pub mod rays;
 pub mod regnerf;
+pub mod reprojection_views;
 pub mod run;
 
 use std::path::{Path, PathBuf};

@@ -42,7 +42,7 @@
 use crate::data::Scene;
 use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
 use crate::loss::photometric::Recomposite;
-use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection, ReprojectionViews};
+use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
@@ -463,7 +463,7 @@ impl Pipeline {
 /// training images exceed what one storage binding of the device holds.
 fn reprojection_term(gpu: &Gpu, scene: &Scene, n: u32, blur: f32) -> Result<(Reprojection, Vec<u32>), TrainError> {
     let error = |message: String| TrainError::Config { source_name: "config".into(), message };
-    let views = ReprojectionViews::pack(scene, blur).map_err(error)?;
+    let views = super::reprojection_views::reprojection_views(scene, blur).map_err(error)?;
     let limit = gpu.limits().max_storage_buffer_binding_size;
     if views.bytes() > limit {
         return Err(error(format!(

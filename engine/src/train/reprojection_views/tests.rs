@@ -1,13 +1,16 @@
-//! Tests of the reprojection term on the committed `creases` scene (3 training views,
+//! Tests of the reprojection term ([`crate::loss::reprojection`]) on the views this
+//! module packs from the committed `creases` scene (3 training views,
 //! rendered by Mitsuba with ground-truth depth): the packed cameras against
-//! [`Camera::project`], the kernel against the `f64` reference, the reference against
+//! [`crate::data::Camera::project`], the kernel against the `f64` reference, the reference against
 //! central differences, and the physics: ground-truth depth reprojects onto matching
 //! colours, and the gradient at a wrong depth points back toward the truth.
 
-use super::reference::{ReprojRay, colour_at, loss, view_term};
 use super::*;
 use crate::data::{Lens, LoadOptions};
-use crate::gpu::test_gpu;
+use crate::gpu::{GpuBuffer, test_gpu};
+use crate::layout::{GpuRay, RayOutput};
+use crate::loss::reprojection::reference::{ReprojRay, colour_at, loss, ray_point, view_term};
+use crate::loss::reprojection::{HEADER, Reprojection};
 use crate::rng::SplitMix64;
 use crate::train::rays::to_gpu_ray;
 
@@ -49,7 +52,7 @@ fn rays_at_depth(scene: &Scene, n: usize, scale: f64, seed: u64) -> Vec<ReprojRa
 #[test]
 fn packed_views_project_as_the_cameras_do() {
     let scene = three_view_creases();
-    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let views = reprojection_views(&scene, 0.0).unwrap();
     assert_eq!(views.n_views, 3);
     let (w, h) = scene.image_size();
     assert_eq!(views.words.len(), 3 * HEADER + 3 * (w * h) as usize);
@@ -82,7 +85,7 @@ fn packed_views_project_as_the_cameras_do() {
 #[test]
 fn packed_views_blur_each_channel() {
     let scene = three_view_creases();
-    let (sharp, blurred) = (ReprojectionViews::pack(&scene, 0.0).unwrap(), ReprojectionViews::pack(&scene, 2.0).unwrap());
+    let (sharp, blurred) = (reprojection_views(&scene, 0.0).unwrap(), reprojection_views(&scene, 2.0).unwrap());
     assert_eq!(sharp.words[..3 * HEADER], blurred.words[..3 * HEADER], "same headers");
     let (w, h) = scene.image_size();
     let view = scene.train_views().nth(1).unwrap();
@@ -105,17 +108,17 @@ fn packing_refuses_what_it_cannot_project() {
     let mut distorted = scene.clone();
     let v = distorted.split.train[1];
     distorted.views[v].camera.lens = Lens::OpenCv { k: [0.1, 0.0, 0.0, 0.0], p: [0.0; 2] };
-    let err = ReprojectionViews::pack(&distorted, 0.0).unwrap_err();
+    let err = reprojection_views(&distorted, 0.0).unwrap_err();
     assert!(err.contains("distorted lens") && err.contains(&distorted.views[v].name), "{err}");
     let mut no_images = scene;
     no_images.views[v].image.data.clear();
-    assert!(ReprojectionViews::pack(&no_images, 0.0).unwrap_err().contains("training images"));
+    assert!(reprojection_views(&no_images, 0.0).unwrap_err().contains("training images"));
 }
 
 #[test]
 fn reprojection_kernel_matches_reference() {
     let scene = three_view_creases();
-    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let views = reprojection_views(&scene, 0.0).unwrap();
     let mut rays = rays_at_depth(&scene, 512, 0.08, 11);
     // Clamped low and high, transparent, and dropped rays.
     rays[3].depth = rays[3].opacity * (rays[3].t_min - 0.1);
@@ -168,7 +171,7 @@ fn assert_kernel_matches_reference(views: &ReprojectionViews, rays: &[ReprojRay]
 #[test]
 fn reprojection_reference_matches_finite_differences() {
     let scene = three_view_creases();
-    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let views = reprojection_views(&scene, 0.0).unwrap();
     assert_reference_matches_finite_differences(&views, &rays_at_depth(&scene, 64, 0.08, 5), "creases");
 }
 
@@ -239,17 +242,17 @@ fn fern_rays(n: usize, seed: u64) -> Option<(Scene, Vec<ReprojRay>)> {
 #[test]
 fn ndc_rays_reproject_through_world_space() {
     let Some((scene, rays)) = fern_rays(64, 3) else { return };
-    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let views = reprojection_views(&scene, 0.0).unwrap();
     let ndc = scene.ndc.unwrap();
     for r in &rays {
         let t = r.depth / r.opacity;
-        let (x, dx) = super::reference::ray_point(&views, r, t);
+        let (x, dx) = ray_point(&views, r, t);
         // NeRF's inverse map of the NDC point, and its derivative along t.
         let p = glam::DVec3::from(r.origin) + t * glam::DVec3::from(r.dir);
         let want = ndc.ndc_to_world(p.as_vec3()).as_dvec3();
         assert!((glam::DVec3::from(x) - want).length() < 1e-4 * want.length(), "{x:?} vs {want}");
         let h = 1e-6;
-        let fd = (glam::DVec3::from(super::reference::ray_point(&views, r, t + h).0) - glam::DVec3::from(super::reference::ray_point(&views, r, t - h).0)) / (2.0 * h);
+        let fd = (glam::DVec3::from(ray_point(&views, r, t + h).0) - glam::DVec3::from(ray_point(&views, r, t - h).0)) / (2.0 * h);
         assert!((glam::DVec3::from(dx) - fd).length() < 1e-5 * fd.length(), "{dx:?} vs {fd}");
         // The point lies on the ray of its pixel: its own view sees it at that pixel.
         let c = &scene.views[scene.split.train[r.source as usize]].camera;
@@ -267,7 +270,7 @@ fn ndc_rays_reproject_through_world_space() {
 #[test]
 fn ground_truth_depth_reprojects_onto_matching_colours() {
     let scene = three_view_creases();
-    let views = ReprojectionViews::pack(&scene, 0.0).unwrap();
+    let views = reprojection_views(&scene, 0.0).unwrap();
     let delta = 0.02;
     let at_truth = rays_at_depth(&scene, 2000, 0.0, 7);
     let (l_true, _) = loss(&views, &at_truth, delta);
@@ -282,7 +285,7 @@ fn ground_truth_depth_reprojects_onto_matching_colours() {
     // only: rendering noise and shading differences between views move each ray's
     // minimum by a fraction of a pixel).
     for (blur, scale) in [(0.0, 0.01), (2.0, 0.03)] {
-        let views = ReprojectionViews::pack(&scene, blur).unwrap();
+        let views = reprojection_views(&scene, blur).unwrap();
         let (l_true, _) = loss(&views, &at_truth, delta);
         let mut rng = SplitMix64::new(9);
         let near: Vec<ReprojRay> = at_truth.iter().map(|r| ReprojRay { depth: r.depth * (1.0 + scale * rng.uniform(1.0)), ..*r }).collect();
