@@ -334,7 +334,7 @@ impl Pipeline {
         if plan.reg.is_some() {
             self.edge_reg.pixel.write(gpu, &batch.reg);
         }
-        if let (Some((term, position)), Some(_)) = (&self.reprojection, self.reprojection_weight(plan)) {
+        if let Some((term, position, _)) = self.reprojection_at(plan) {
             term.source.write(gpu, &batch.views.iter().map(|&v| position[v as usize]).collect::<Vec<_>>());
         }
         if let Some((alpha, _)) = &self.random_background {
@@ -390,7 +390,7 @@ impl Pipeline {
         if let Some(term) = self.planarity_term(plan) {
             self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, &term, scene.ndc.is_some());
         }
-        if let (Some((term, _)), Some(lambda)) = (&self.reprojection, self.reprojection_weight(plan)) {
+        if let Some((term, _, lambda)) = self.reprojection_at(plan) {
             let delta = model.config.reg.reprojection_delta;
             term.record(&mut enc, rays_out, &bufs.rays, &self.targets, &self.d_rays, n, lambda, delta);
         }
@@ -412,9 +412,12 @@ impl Pipeline {
         plan.reg.and_then(|w| w.planarity_term()).filter(|_| self.n_triplets > 0)
     }
 
-    /// The reprojection term's weight at `plan`'s step, `None` when it does not run.
-    fn reprojection_weight(&self, plan: &StepPlan) -> Option<f32> {
-        plan.reg.map(|w| w.lambda_reprojection).filter(|&l| l > 0.0 && self.reprojection.is_some())
+    /// The reprojection term, its views' training positions and its weight at `plan`'s
+    /// step, `None` when it does not run.
+    fn reprojection_at(&self, plan: &StepPlan) -> Option<(&Reprojection, &[u32], f32)> {
+        let (term, position) = self.reprojection.as_ref()?;
+        let lambda = plan.reg?.lambda_reprojection;
+        (lambda > 0.0).then_some((term, position.as_slice(), lambda))
     }
 
     /// The losses of the last batch and the sampler's counts, read back together (one
@@ -431,7 +434,7 @@ impl Pipeline {
         let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
         let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
         let planarity = self.planarity_term(plan).map(|_| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
-        let reprojection = self.reprojection.as_ref().filter(|_| self.reprojection_weight(plan).is_some()).map(|(t, _)| batch.add(&t.ray_loss, n));
+        let reprojection = self.reprojection_at(plan).map(|(t, _, _)| batch.add(&t.ray_loss, n));
         let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
         let back = batch.read(gpu)?;
         let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);
