@@ -62,23 +62,24 @@ fn partial_sums(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
 ) {
+    // Branch-free on purpose: the parameters are read once before the loop, and every
+    // element is loaded (an index past the end reads the last element) and masked
+    // with `select`. A load under a divergent branch is a per-lane gather on lavapipe,
+    // which made this pass several times slower.
+    let p = pp;
     let block = wid.x + wid.y * nwg.x;
+    let in_block = block < p.blocks;
+    let last = max(p.n, 1u) - 1u;
     var acc = vec4<f32>(0.0);
     let base = block * BLOCK;
     for (var k = 0u; k < ITEMS; k = k + 1u) {
         let i = base + k * RED_WG + lid;
-        if (block < pp.blocks && i < pp.n) {
-            let g = grads_in[i];
-            if (grad_is_finite(g)) {
-                var c = g;
-                if (pp.clip_value > 0.0) {
-                    c = clamp(g, -pp.clip_value, pp.clip_value);
-                }
-                acc = combine(acc, vec4<f32>(g * g, c * c, 0.0, abs(g)));
-            } else {
-                acc.z = acc.z + 1.0;
-            }
-        }
+        let present = in_block && i < p.n;
+        let g = grads_in[min(i, last)];
+        let finite = grad_is_finite(g);
+        let x = select(0.0, g, present && finite);
+        let c = select(x, clamp(x, -p.clip_value, p.clip_value), p.clip_value > 0.0);
+        acc = combine(acc, vec4<f32>(x * x, c * c, select(0.0, 1.0, present && !finite), abs(x)));
     }
     shared_acc[lid] = acc;
     workgroupBarrier();
@@ -94,8 +95,9 @@ fn partial_sums(
 
 @compute @workgroup_size(RED_WG)
 fn finalize(@builtin(local_invocation_index) lid: u32) {
+    let count = fp.count;
     var acc = vec4<f32>(0.0);
-    for (var j = lid; j < fp.count; j = j + RED_WG) {
+    for (var j = lid; j < count; j = j + RED_WG) {
         acc = combine(acc, partials_in[j]);
     }
     shared_acc[lid] = acc;

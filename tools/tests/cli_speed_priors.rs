@@ -1,4 +1,4 @@
-//! `edgenerf speed` (per-stage timing, JSON) and `train` with the sparse-view priors
+//! `edgenerf speed` (per-stage and per-kernel timing, JSON) and `train` with the sparse-view priors
 //! (`priors.distortion`, `priors.occlusion`: logged in `log.csv`'s appended columns).
 
 mod common;
@@ -10,7 +10,7 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     let out = tempfile::tempdir().unwrap();
     let o = command()
         .current_dir(repo())
-        .args(["speed", "--preset", "sparse-small", "--warmup", "1", "--steps", "2", "--out"])
+        .args(["speed", "--preset", "sparse-small", "--warmup", "1", "--steps", "2", "--kernels", "--out"])
         .arg(out.path())
         .output()
         .unwrap();
@@ -33,6 +33,18 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     }
     let field_ms = |name: &str| stages.iter().find(|s| s["stage"] == name).unwrap()["ms_per_step"].as_f64().unwrap();
     assert!(field_ms("field forward") > 0.0 && field_ms("field backward") > 0.0);
+
+    // --kernels: every kernel of a step, the slowest first, the field's among them.
+    assert!(t.contains("kernels timed one by one"), "{t}");
+    let kernels = case["kernels"].as_array().unwrap();
+    let ms: Vec<f64> = kernels.iter().map(|k| k["ms_per_step"].as_f64().unwrap()).collect();
+    assert!(ms.windows(2).all(|w| w[0] >= w[1]), "{ms:?}");
+    let share: f64 = kernels.iter().map(|k| k["share"].as_f64().unwrap()).sum();
+    assert!((share - 1.0).abs() < 1e-9);
+    for name in ["field/grid_forward.wgsl:forward", "field/grid_backward.wgsl:backward", "optim/adam.wgsl:adam_step"] {
+        let k = kernels.iter().find(|k| k["kernel"] == name).unwrap_or_else(|| panic!("{name} not timed: {kernels:?}"));
+        assert!(k["ms_per_step"].as_f64().unwrap() > 0.0 && k["dispatches_per_step"].as_f64().unwrap() >= 1.0, "{k}");
+    }
 }
 
 #[test]

@@ -444,7 +444,32 @@ impl<'g> Encoder<'g> {
         if groups.contains(&0) {
             return;
         }
-        self.begin_pass(kernel, resources).dispatch_workgroups(groups[0], groups[1], groups[2]);
+        self.timed(kernel, |enc| enc.begin_pass(kernel, resources).dispatch_workgroups(groups[0], groups[1], groups[2]));
+    }
+
+    /// Records one dispatch with `record`; with per-kernel timing on
+    /// ([`Gpu::set_kernel_timing`](super::Gpu::set_kernel_timing)), runs what was
+    /// recorded before it first, then the dispatch alone, and charges its wall time.
+    fn timed(&mut self, kernel: &Kernel, record: impl FnOnce(&mut Self)) {
+        if !self.gpu.kernel_timing() {
+            record(self);
+            return;
+        }
+        self.run_recorded();
+        let started = std::time::Instant::now();
+        record(self);
+        self.run_recorded();
+        self.gpu.charge_kernel(&kernel.spec, started.elapsed());
+    }
+
+    /// Submits what was recorded so far and waits for it (per-kernel timing only); the
+    /// encoder goes on recording into a fresh command buffer.
+    fn run_recorded(&mut self) {
+        let fresh = self.gpu.device.create_command_encoder(&Default::default());
+        let recorded = std::mem::replace(&mut self.encoder, fresh);
+        self.gpu.queue.submit([recorded.finish()]);
+        // A failed wait surfaces at the caller's next readback; timing only loses a figure.
+        let _ = self.gpu.wait();
     }
 
     /// A compute pass with `kernel`'s pipeline and `resources` bound.
@@ -462,7 +487,7 @@ impl<'g> Encoder<'g> {
     /// Dispatches `kernel` with its workgroup grid read from `args` at byte `offset`
     /// (three `u32`, written earlier in this encoder: see [`super::IndirectArgs`]).
     pub fn dispatch_indirect(&mut self, kernel: &Kernel, resources: &[&wgpu::Buffer], args: &wgpu::Buffer, offset: u64) {
-        self.begin_pass(kernel, resources).dispatch_workgroups_indirect(args, offset);
+        self.timed(kernel, |enc| enc.begin_pass(kernel, resources).dispatch_workgroups_indirect(args, offset));
     }
 
     /// The GPU this encoder records for.

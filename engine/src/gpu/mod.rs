@@ -24,6 +24,7 @@ mod buffer;
 pub mod selftest;
 mod indirect;
 pub mod kernel;
+mod kernel_timing;
 mod readback;
 
 use std::collections::HashMap;
@@ -32,6 +33,7 @@ use std::sync::{Arc, Mutex};
 pub use buffer::GpuBuffer;
 pub use indirect::IndirectArgs;
 pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
+pub use kernel_timing::{KernelTimes, KernelTotal};
 pub use readback::{ReadBack, ReadBatch, ReadSlot};
 
 /// What to install when no Vulkan driver is found.
@@ -113,6 +115,8 @@ pub struct Gpu {
     summary: Arc<AdapterSummary>,
     limits: wgpu::Limits,
     kernels: Arc<Mutex<HashMap<(KernelSpec, String), Arc<Kernel>>>>,
+    /// Per-kernel wall times while timing is on ([`Gpu::set_kernel_timing`]).
+    kernel_times: Arc<Mutex<Option<KernelTimes>>>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -196,7 +200,7 @@ impl Gpu {
             float_atomics,
             max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
         };
-        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default() })
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default() })
     }
 
     /// The adapter in use.
@@ -237,6 +241,29 @@ impl Gpu {
     /// Starts recording a sequence of dispatches and copies.
     pub fn encoder(&self) -> Encoder<'_> {
         Encoder::new(self)
+    }
+
+    /// Switches per-kernel timing on (from zero) or off, for this context and its
+    /// clones (see [`kernel_timing`]). Slows every dispatch down; changes no result.
+    pub fn set_kernel_timing(&self, on: bool) {
+        *self.kernel_times.lock().unwrap() = on.then(KernelTimes::default);
+    }
+
+    /// The kernel times accumulated since timing was switched on (`None`: off).
+    pub fn kernel_times(&self) -> Option<KernelTimes> {
+        self.kernel_times.lock().unwrap().clone()
+    }
+
+    /// Whether per-kernel timing is on.
+    pub(crate) fn kernel_timing(&self) -> bool {
+        self.kernel_times.lock().unwrap().is_some()
+    }
+
+    /// Charges `elapsed` to `kernel` when timing is on.
+    fn charge_kernel(&self, kernel: &KernelSpec, elapsed: std::time::Duration) {
+        if let Some(t) = self.kernel_times.lock().unwrap().as_mut() {
+            t.charge(&format!("{}:{}", kernel.file, kernel.entry), elapsed);
+        }
     }
 
     /// Blocks until all submitted work is done.

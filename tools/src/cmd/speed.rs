@@ -31,6 +31,10 @@ pub struct Args {
     /// Steps timed plain, then as many profiled.
     #[arg(long, default_value_t = 30)]
     steps: u64,
+    /// Then as many steps again with every kernel timed on its own (slower; the waits
+    /// serialize the step): the slowest kernels per step, and all of them in the JSON.
+    #[arg(long)]
+    kernels: bool,
     /// Directory for speed.json.
     #[arg(long, default_value = "runs/speed")]
     out: PathBuf,
@@ -66,6 +70,17 @@ struct CaseResult {
     field_forward_samples_per_s: f64,
     field_backward_samples_per_s: f64,
     stages: Vec<StageRow>,
+    /// With `--kernels`: every kernel's wall time per step, the slowest first.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    kernels: Vec<KernelRow>,
+}
+
+#[derive(serde::Serialize)]
+struct KernelRow {
+    kernel: String,
+    ms_per_step: f64,
+    dispatches_per_step: f64,
+    share: f64,
 }
 
 #[derive(serde::Serialize)]
@@ -115,7 +130,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     config.resolve();
     let scene = super::train::load_scene(&config)?;
     let mut trainer = Trainer::new(gpu.clone(), scene, config)?;
-    let total = args.warmup + 2 * args.steps;
+    let total = args.warmup + if args.kernels { 3 } else { 2 } * args.steps;
     let bar = ProgressBar::new(total);
     bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
     bar.set_prefix(case.name.clone());
@@ -137,8 +152,30 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     for _ in 0..args.steps {
         step(&mut trainer, "profiled")?;
     }
-    bar.finish_and_clear();
     let times: StageTimes = trainer.stage_times().cloned().expect("profiling is on");
+    trainer.set_profiling(false);
+    let kernels = if args.kernels {
+        gpu.set_kernel_timing(true);
+        for _ in 0..args.steps {
+            step(&mut trainer, "kernels timed")?;
+        }
+        let times = gpu.kernel_times().expect("kernel timing is on");
+        gpu.set_kernel_timing(false);
+        let (n, total) = (args.steps as f64, times.total_seconds().max(1e-12));
+        times
+            .totals()
+            .into_iter()
+            .map(|k| KernelRow {
+                ms_per_step: 1e3 * k.seconds / n,
+                dispatches_per_step: k.dispatches as f64 / n,
+                share: k.seconds / total,
+                kernel: k.kernel,
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    bar.finish_and_clear();
     let n = times.steps.max(1) as f64;
     let total_s = times.total();
     let per_s = |samples: u64, seconds: f64| samples as f64 / seconds.max(1e-12);
@@ -159,6 +196,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
             .iter()
             .map(|&s| StageRow { stage: s.name(), ms_per_step: 1e3 * times.of(s) / n, share: times.of(s) / total_s.max(1e-12) })
             .collect(),
+        kernels,
     })
 }
 
@@ -177,7 +215,18 @@ fn print_case(r: &CaseResult) {
         r.field_forward_samples_per_s / 1e6,
         r.field_backward_samples_per_s / 1e6
     );
+    if !r.kernels.is_empty() {
+        let total: f64 = r.kernels.iter().map(|k| k.ms_per_step).sum();
+        println!("  kernels timed one by one: {total:.1} ms/step; the slowest (all in speed.json):");
+        println!("  {:<44} {:>9} {:>6} {:>10}", "kernel", "ms/step", "share", "launches");
+        for k in r.kernels.iter().take(KERNELS_SHOWN) {
+            println!("  {:<44} {:>9.2} {:>5.1}% {:>10.1}", k.kernel, k.ms_per_step, 100.0 * k.share, k.dispatches_per_step);
+        }
+    }
 }
+
+/// Kernels listed in the table of `--kernels` (speed.json has every one).
+const KERNELS_SHOWN: usize = 15;
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if args.steps == 0 {

@@ -175,6 +175,9 @@
 //!   between the per-sample kernel and the outer products: chunks of 4096 or 8192
 //!   samples (5-10 MB of scratch) made the backward slower (145 and 134 ms against
 //!   122 ms in one chunk, one invocation; `field.backward_chunk`).
+//!   A fourth (2026-11-27): 16x16 weight tiles in `outer` (half the scratch loads per
+//!   FMA, 256 accumulators a thread) ran 45-59 ms a step against 44 ms for the 8x8
+//!   tiles (`edgenerf speed --kernels`, sparse-small): the loads do not bound it.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
