@@ -1,7 +1,10 @@
 //! `edgenerf speed`: training speed on the adapter in use, per stage of a step, for the
 //! demo and the sparse-view preset (or any scene and config): steps/s of plain steps,
 //! then the same steps profiled stage by stage ([`edgenerf::train::profile`]), field
-//! samples per second of the forward and backward passes, as a table and as JSON.
+//! samples per second of the forward and backward passes, as a table and as JSON; with
+//! `--kernels`, the wall time of every kernel timed on its own
+//! ([`edgenerf::gpu::KernelTimes`]). The timed steps are those of the rest of a run:
+//! every regularizer at full weight and every grid level active from the first step.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -123,10 +126,12 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     let mut config = RunConfig::from_file_for(&case.config, None)?;
     config.scene.path = case.scene.clone();
     config.scene.views = case.views;
-    // Every term of the config at full weight from the first step: the timed steps are
-    // those of the rest of a run (a preset's regularizer schedule starts them later).
+    // Every term of the config at full weight and every grid level active from the
+    // first step: the timed steps are those of the rest of a run (a preset's
+    // regularizer schedule starts the terms later, its level annealing the fine levels).
     config.reg.start_step = 0;
     config.reg.warmup_steps = 0;
+    config.train.level_anneal = None;
     config.resolve();
     let scene = super::train::load_scene(&config)?;
     let mut trainer = Trainer::new(gpu.clone(), scene, config)?;
