@@ -612,6 +612,51 @@ pub(crate) mod tests {
             .collect()
     }
 
+    /// Host time to record and submit a dispatch with its parameters (what a step
+    /// spends per kernel launch before the GPU runs anything), and the same with the
+    /// wait. `cargo test -p edgenerf-engine --release dispatch_recording_cost --
+    /// --ignored --nocapture`. On the 2-core CPU with lavapipe (2026-11-27): 8-9 us
+    /// to record and submit, 60-85 us with lavapipe running the tiny dispatch. A pool
+    /// of parameter buffers with a bind-group cache was measured against it (8-10 us)
+    /// and not kept: creating them is not what recording costs here.
+    #[test]
+    #[ignore]
+    fn dispatch_recording_cost() {
+        let gpu = crate::gpu::test_gpu(false);
+        let kernel = gpu.kernel(&crate::gpu::selftest::SPEC).unwrap();
+        let input = crate::gpu::GpuBuffer::from_slice(&gpu, "values", &[1.0f32; 64]).unwrap();
+        let outs: Vec<crate::gpu::GpuBuffer<f32>> = (0..40).map(|_| crate::gpu::GpuBuffer::zeros(&gpu, "out", 64).unwrap()).collect();
+        let sums = crate::gpu::GpuBuffer::<f32>::zeros(&gpu, "sums", 1).unwrap();
+        let step = |k: u32| {
+            let mut enc = gpu.encoder();
+            for (j, out) in outs.iter().enumerate() {
+                let p = enc.params(&crate::gpu::selftest::Params { n: 64, bins: 1, scale: (k + j as u32) as f32, _pad: 0 });
+                enc.dispatch_threads(&kernel, &[&p, &input.buffer, &out.buffer, &sums.buffer], 64);
+            }
+            enc.submit();
+        };
+        for k in 0..20 {
+            step(k);
+        }
+        gpu.wait().unwrap();
+        let steps = 200u32;
+        let (mut host, started) = (std::time::Duration::ZERO, std::time::Instant::now());
+        for k in 0..steps {
+            let t = std::time::Instant::now();
+            step(k);
+            host += t.elapsed();
+            gpu.wait().unwrap();
+        }
+        let n = (steps * outs.len() as u32) as f64;
+        println!(
+            "record + submit: {:.1} us per dispatch; with the wait: {:.1} us per dispatch",
+            host.as_secs_f64() * 1e6 / n,
+            started.elapsed().as_secs_f64() * 1e6 / n
+        );
+        let last = outs[39].read(&gpu).unwrap();
+        assert!(last.iter().all(|&v| v == (steps - 1 + 39) as f32));
+    }
+
     #[test]
     fn every_kernel_validates_on_both_atomic_paths() {
         assert!(!KERNEL_SOURCES.is_empty(), "no kernels embedded");

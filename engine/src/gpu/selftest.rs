@@ -5,7 +5,7 @@
 
 use super::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
 
-const SPEC: KernelSpec = KernelSpec {
+pub(crate) const SPEC: KernelSpec = KernelSpec {
     file: "gpu/roundtrip.wgsl",
     entry: "scatter_add",
     bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
@@ -13,11 +13,11 @@ const SPEC: KernelSpec = KernelSpec {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    bins: u32,
-    scale: f32,
-    _pad: u32,
+pub(crate) struct Params {
+    pub n: u32,
+    pub bins: u32,
+    pub scale: f32,
+    pub _pad: u32,
 }
 
 /// Result of [`scatter_add`]: the GPU's outputs for comparison with a CPU reference.
