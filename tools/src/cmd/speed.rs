@@ -135,8 +135,9 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     config.resolve();
     let scene = super::train::load_scene(&config)?;
     let mut trainer = Trainer::new(gpu.clone(), scene, config)?;
-    let total = args.warmup + if args.kernels { 3 } else { 2 } * args.steps;
-    let bar = ProgressBar::new(total);
+    // Plain and profiled steps, and with --kernels as many again timed kernel by kernel.
+    let timed_passes = if args.kernels { 3 } else { 2 };
+    let bar = ProgressBar::new(args.warmup + timed_passes * args.steps);
     bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
     bar.set_prefix(case.name.clone());
     let step = |trainer: &mut Trainer, phase: &str| -> anyhow::Result<()> {
