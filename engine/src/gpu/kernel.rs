@@ -622,15 +622,17 @@ pub(crate) mod tests {
     #[test]
     #[ignore]
     fn dispatch_recording_cost() {
-        let gpu = crate::gpu::test_gpu(false);
-        let kernel = gpu.kernel(&crate::gpu::selftest::SPEC).unwrap();
-        let input = crate::gpu::GpuBuffer::from_slice(&gpu, "values", &[1.0f32; 64]).unwrap();
-        let outs: Vec<crate::gpu::GpuBuffer<f32>> = (0..40).map(|_| crate::gpu::GpuBuffer::zeros(&gpu, "out", 64).unwrap()).collect();
-        let sums = crate::gpu::GpuBuffer::<f32>::zeros(&gpu, "sums", 1).unwrap();
+        use crate::gpu::selftest::{Params, SPEC};
+        use crate::gpu::{GpuBuffer, test_gpu};
+        let gpu = test_gpu(false);
+        let kernel = gpu.kernel(&SPEC).unwrap();
+        let input = GpuBuffer::from_slice(&gpu, "values", &[1.0f32; 64]).unwrap();
+        let outs: Vec<GpuBuffer<f32>> = (0..40).map(|_| GpuBuffer::zeros(&gpu, "out", 64).unwrap()).collect();
+        let sums = GpuBuffer::<f32>::zeros(&gpu, "sums", 1).unwrap();
         let step = |k: u32| {
             let mut enc = gpu.encoder();
             for (j, out) in outs.iter().enumerate() {
-                let p = enc.params(&crate::gpu::selftest::Params { n: 64, bins: 1, scale: (k + j as u32) as f32, _pad: 0 });
+                let p = enc.params(&Params { n: 64, bins: 1, scale: (k + j as u32) as f32, _pad: 0 });
                 enc.dispatch_threads(&kernel, &[&p, &input.buffer, &out.buffer, &sums.buffer], 64);
             }
             enc.submit();
