@@ -49,8 +49,10 @@ fn adam_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let applied = stats[STAT_APPLIED];
     let clip_value = stats[STAT_CLIP_VALUE];
     let scale = stats[STAT_SCALE];
+    let guard = stats[STAT_GUARD];
     let i = thread_index(gid, nwg);
-    if (i >= c.n) {
+    // A non-finite loss skips the step whatever the flags (grad_stats.wgsl).
+    if (i >= c.n || guard > 0.0) {
         return;
     }
     if ((c.flags & FLAG_SKIP_NONFINITE) != 0u && nonfinite > 0.0) {

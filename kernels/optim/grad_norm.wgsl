@@ -4,7 +4,9 @@
 // `partial_sums` runs once per gradient buffer: workgroup b reduces elements
 // [b * BLOCK, (b + 1) * BLOCK) of that buffer into partials[offset + b] as
 // (sum g^2, sum clamp(g)^2, non-finite count, max |g|), finite elements only.
-// `finalize` (one workgroup) reduces all partials into the stats buffer.
+// `finalize` (one workgroup) reduces all partials into the stats buffer: the first
+// `count` are the gradients', the `guards` after them the guard buffers', of which only
+// the non-finite count is kept (STAT_GUARD).
 // `clip_in_place` scales one gradient buffer by the stats; `mark_applied` records that
 // it was done. Every reduction order is fixed by the sizes alone: deterministic.
 
@@ -27,6 +29,10 @@ struct FinalParams {
     max_norm: f32,
     clip_value: f32,
     norm_eps: f32,
+    guards: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 struct ClipParams {
@@ -100,11 +106,22 @@ fn finalize(@builtin(local_invocation_index) lid: u32) {
     for (var j = lid; j < count; j = j + RED_WG) {
         acc = combine(acc, partials_in[j]);
     }
+    // The guards' non-finite counts, summed in a fixed order (one strided loop per
+    // invocation, then the tree) like the gradients'.
+    var guard = 0.0;
+    for (var j = count + lid; j < count + fp.guards; j = j + RED_WG) {
+        guard = guard + partials_in[j].z;
+    }
     shared_acc[lid] = acc;
     workgroupBarrier();
     reduce_workgroup(lid);
+    let total = shared_acc[0];
+    workgroupBarrier();
+    shared_acc[lid] = vec4<f32>(0.0, 0.0, guard, 0.0);
+    workgroupBarrier();
+    reduce_workgroup(lid);
     if (lid == 0u) {
-        let total = shared_acc[0];
+        let guard_total = shared_acc[0].z;
         let raw_norm = sqrt(total.x);
         var norm = raw_norm;
         if (fp.clip_value > 0.0) {
@@ -123,7 +140,7 @@ fn finalize(@builtin(local_invocation_index) lid: u32) {
         stats_out[STAT_ABS_MAX] = total.w;
         stats_out[STAT_CLIP_VALUE] = max(fp.clip_value, 0.0);
         stats_out[STAT_APPLIED] = 0.0;
-        stats_out[7] = 0.0;
+        stats_out[STAT_GUARD] = guard_total;
     }
 }
 
@@ -136,7 +153,7 @@ fn clip_in_place(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     let i = thread_index(gid, nwg);
     // Non-finite gradients are left untouched (the step is to be skipped), and a clip
     // already applied is not applied twice.
-    if (i >= cp.n || stats_in[STAT_NONFINITE] > 0.0 || stats_in[STAT_APPLIED] != 0.0) {
+    if (i >= cp.n || stats_in[STAT_NONFINITE] > 0.0 || stats_in[STAT_GUARD] > 0.0 || stats_in[STAT_APPLIED] != 0.0) {
         return;
     }
     var g = grads_inout[i];

@@ -19,6 +19,10 @@ const STAT_CLIP_VALUE: u32 = 5u;
 // 1 once the clip has been applied to the gradient buffers in place (consumers must
 // then not apply it again), 0 after a fresh reduction.
 const STAT_APPLIED: u32 = 6u;
+// Number of words of the guard buffers (a batch's losses) that are NaN or +-Inf. Any
+// makes every consumer skip the step whatever its flags: a non-finite loss changes no
+// parameter, even where its gradients came out finite.
+const STAT_GUARD: u32 = 7u;
 
 // NaN and +-Inf have an all-ones exponent. A bit test, because shader compilers may
 // assume floats are finite and fold `x != x` away.

@@ -36,7 +36,7 @@ pub(crate) mod test_support;
 pub use grid::{DensityActivation, GridConfig, GridField};
 pub use mlp::{Footprint, MlpConfig, MlpField, PositionEncoding};
 
-use crate::gpu::{Gpu, GpuBuffer, GpuError};
+use crate::gpu::{Encoder, Gpu, GpuBuffer, GpuError};
 pub use crate::optim::ParamGroup;
 use crate::layout::{FieldGrads, FieldOutputs, LiveSamples, SampleBatch};
 
@@ -69,26 +69,52 @@ pub trait Field {
     fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
     -> Result<(), GpuError>;
 
-    /// Density, colour and (when `normals`) unit normals of every sample of `batch`.
-    /// Without `normals`, `out.normal` is left untouched.
-    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError>;
+    /// Density, colour and (when `normals`) unit normals of every sample of `batch`,
+    /// recorded into `enc` (the caller submits; a training step records its whole
+    /// step into one encoder). Without `normals`, `out.normal` is left untouched.
+    fn record_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError>;
 
-    /// [`Field::forward`] for a training step whose [`Field::backward`] on the same
-    /// `batch` follows with the same parameters: a backend may keep what that backward
-    /// would otherwise recompute (the grid keeps each sample's encoding). The backward
-    /// gives the same gradients either way; by default this is `forward`.
-    fn forward_for_backward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
-    -> Result<(), GpuError> {
-        self.forward(gpu, batch, out, normals)
+    /// [`Field::record_forward`] in its own submission (does not wait).
+    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
+        gpu.submit_recorded(|enc| self.record_forward(enc, batch, out, normals))
     }
 
-    /// Adds `dL/dparams` for the per-sample output gradients `grads` into the gradient
-    /// buffers; `normal_grads` enables the second-order path through the normals
-    /// (`grads.normal` is ignored without it). `live`, when given, lists every sample
-    /// whose `grads` may be non-zero (the sampler's live compaction): a backend may run
-    /// only those, or ignore the list; the gradients are the same either way.
+    /// [`Field::record_forward`] for a training step whose [`Field::record_backward`] on
+    /// the same `batch` follows with the same parameters: a backend may keep what that
+    /// backward would otherwise recompute (the grid keeps each sample's encoding). The
+    /// backward gives the same gradients either way; by default this is the forward.
+    fn record_forward_for_backward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
+        self.record_forward(enc, batch, out, normals)
+    }
+
+    /// [`Field::record_forward_for_backward`] in its own submission.
+    fn forward_for_backward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
+        gpu.submit_recorded(|enc| self.record_forward_for_backward(enc, batch, out, normals))
+    }
+
+    /// Records the addition of `dL/dparams` for the per-sample output gradients `grads`
+    /// into the gradient buffers; `normal_grads` enables the second-order path through
+    /// the normals (`grads.normal` is ignored without it). `live`, when given, lists
+    /// every sample whose `grads` may be non-zero (the sampler's live compaction): a
+    /// backend may run only those, or ignore the list; the gradients are the same
+    /// either way.
+    fn record_backward(
+        &mut self,
+        enc: &mut Encoder,
+        batch: &SampleBatch,
+        grads: &FieldGrads,
+        live: Option<&LiveSamples>,
+        normal_grads: bool,
+    ) -> Result<(), GpuError>;
+
+    /// [`Field::record_backward`] in its own submission.
     fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, live: Option<&LiveSamples>, normal_grads: bool)
-    -> Result<(), GpuError>;
+    -> Result<(), GpuError> {
+        gpu.submit_recorded(|enc| self.record_backward(enc, batch, grads, live, normal_grads))
+    }
 
     /// Parameter groups for the optimizer, in a fixed order with unique names.
     fn params(&self) -> Vec<ParamGroup<'_>>;
@@ -98,8 +124,15 @@ pub trait Field {
         self.params().iter().map(|g| g.params.len()).sum()
     }
 
+    /// Records the clearing of every gradient buffer.
+    fn record_zero_grads(&self, enc: &mut Encoder);
+
     /// Clears every gradient buffer (queued).
-    fn zero_grads(&self, gpu: &Gpu);
+    fn zero_grads(&self, gpu: &Gpu) {
+        let mut enc = gpu.encoder();
+        self.record_zero_grads(&mut enc);
+        enc.submit();
+    }
 
     /// Reads the parameters back as named arrays (waits for queued work).
     fn export(&self, gpu: &Gpu) -> Result<Vec<NamedArray>, GpuError>;

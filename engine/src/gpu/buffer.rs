@@ -78,9 +78,9 @@ impl<T: Pod> GpuBuffer<T> {
 
     /// Sets every byte to zero (queued).
     pub fn clear(&self, gpu: &Gpu) {
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        enc.clear_buffer(&self.buffer, 0, None);
-        gpu.queue.submit([enc.finish()]);
+        let mut enc = gpu.encoder();
+        enc.clear(&self.buffer);
+        enc.submit();
     }
 
     /// Copies the buffer back to the host, waiting for all submitted work first (a

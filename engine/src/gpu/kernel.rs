@@ -465,11 +465,18 @@ impl<'g> Encoder<'g> {
     /// Submits what was recorded so far and waits for it (per-kernel timing only); the
     /// encoder goes on recording into a fresh command buffer.
     fn run_recorded(&mut self) {
-        let fresh = self.gpu.device.create_command_encoder(&Default::default());
-        let recorded = std::mem::replace(&mut self.encoder, fresh);
-        self.gpu.queue.submit([recorded.finish()]);
+        self.flush();
         // A failed wait surfaces at the caller's next readback; timing only loses a figure.
         let _ = self.gpu.wait();
+    }
+
+    /// Submits what was recorded so far (does not wait) and goes on recording into a
+    /// fresh command buffer: for a caller that must read a result of the recorded work
+    /// before it records more (e.g. the MLP backend's sample count, stage timing).
+    pub fn flush(&mut self) {
+        let fresh = self.gpu.device.create_command_encoder(&Default::default());
+        let recorded = std::mem::replace(&mut self.encoder, fresh);
+        self.gpu.submit(recorded.finish());
     }
 
     /// A compute pass with `kernel`'s pipeline and `resources` bound.
@@ -504,7 +511,12 @@ impl<'g> Encoder<'g> {
 
     /// Copies `bytes` bytes between buffers.
     pub fn copy(&mut self, src: &wgpu::Buffer, dst: &wgpu::Buffer, bytes: u64) {
-        self.encoder.copy_buffer_to_buffer(src, 0, dst, 0, bytes);
+        self.copy_at(src, dst, 0, bytes);
+    }
+
+    /// Copies the first `bytes` bytes of `src` to `dst` at byte `dst_offset`.
+    pub fn copy_at(&mut self, src: &wgpu::Buffer, dst: &wgpu::Buffer, dst_offset: u64, bytes: u64) {
+        self.encoder.copy_buffer_to_buffer(src, 0, dst, dst_offset, bytes);
     }
 
     /// Zero-fills a buffer.
@@ -514,7 +526,7 @@ impl<'g> Encoder<'g> {
 
     /// Submits everything recorded (does not wait).
     pub fn submit(self) {
-        self.gpu.queue.submit([self.encoder.finish()]);
+        self.gpu.submit(self.encoder.finish());
     }
 }
 

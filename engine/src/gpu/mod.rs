@@ -28,6 +28,7 @@ mod kernel_timing;
 mod readback;
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 pub use buffer::GpuBuffer;
@@ -117,6 +118,8 @@ pub struct Gpu {
     kernels: Arc<Mutex<HashMap<(KernelSpec, String), Arc<Kernel>>>>,
     /// Per-kernel wall times while timing is on ([`Gpu::set_kernel_timing`]).
     kernel_times: Arc<Mutex<Option<KernelTimes>>>,
+    /// Command buffers submitted so far, by this context and its clones.
+    submissions: Arc<AtomicU64>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -200,7 +203,7 @@ impl Gpu {
             float_atomics,
             max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
         };
-        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default() })
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default() })
     }
 
     /// The adapter in use.
@@ -243,6 +246,15 @@ impl Gpu {
         Encoder::new(self)
     }
 
+    /// Records with `record` into a fresh encoder and submits it (does not wait); on
+    /// error nothing is submitted.
+    pub fn submit_recorded<R, E>(&self, record: impl FnOnce(&mut Encoder) -> Result<R, E>) -> Result<R, E> {
+        let mut enc = self.encoder();
+        let result = record(&mut enc)?;
+        enc.submit();
+        Ok(result)
+    }
+
     /// Switches per-kernel timing on (from zero) or off, for this context and its
     /// clones (see [`kernel_timing`]). Slows every dispatch down; changes no result.
     pub fn set_kernel_timing(&self, on: bool) {
@@ -264,6 +276,19 @@ impl Gpu {
         if let Some(t) = self.kernel_times.lock().unwrap().as_mut() {
             t.charge(&format!("{}:{}", kernel.file, kernel.entry), elapsed);
         }
+    }
+
+    /// Submits one command buffer (every submission of the engine goes through here, so
+    /// [`Gpu::submissions`] counts them).
+    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) {
+        self.submissions.fetch_add(1, Ordering::Relaxed);
+        self.queue.submit([commands]);
+    }
+
+    /// Command buffers submitted so far by this context and its clones: a training step
+    /// submits one ([`crate::train::Trainer::step`]).
+    pub fn submissions(&self) -> u64 {
+        self.submissions.load(Ordering::Relaxed)
     }
 
     /// Blocks until all submitted work is done.

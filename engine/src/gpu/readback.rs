@@ -11,7 +11,7 @@
 
 use std::marker::PhantomData;
 
-use super::{Gpu, GpuBuffer, GpuError};
+use super::{Encoder, Gpu, GpuBuffer, GpuError};
 
 /// Buffers (their first elements) to read back together.
 #[derive(Default)]
@@ -48,6 +48,13 @@ impl<'a> ReadBatch<'a> {
 
     /// Copies every part into one staging buffer, submits, and waits for the GPU.
     pub fn read(self, gpu: &Gpu) -> Result<ReadBack, GpuError> {
+        self.read_after(gpu.encoder())
+    }
+
+    /// [`ReadBatch::read`] at the end of `enc`: the copies are recorded after what
+    /// `enc` holds and go out in its one submission (a training step's only one).
+    pub fn read_after(self, mut enc: Encoder) -> Result<ReadBack, GpuError> {
+        let gpu = enc.gpu();
         let mut ranges = Vec::with_capacity(self.parts.len());
         let mut total = 0u64;
         for (_, bytes) in &self.parts {
@@ -57,6 +64,7 @@ impl<'a> ReadBatch<'a> {
             total += bytes;
         }
         if total == 0 {
+            enc.submit();
             return Ok(ReadBack { bytes: Vec::new(), ranges });
         }
         let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -65,13 +73,12 @@ impl<'a> ReadBatch<'a> {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
         for ((buffer, bytes), range) in self.parts.iter().zip(&ranges) {
             if *bytes > 0 {
-                enc.copy_buffer_to_buffer(buffer, 0, &staging, range.start as u64, *bytes);
+                enc.copy_at(buffer, &staging, range.start as u64, *bytes);
             }
         }
-        gpu.queue.submit([enc.finish()]);
+        enc.submit();
         let slice = staging.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {

@@ -23,6 +23,8 @@
 //! * With stats from a [`GradNorm`] and `skip_nonfinite`, a step whose gradients hold a
 //!   NaN/Inf leaves parameters, `m` and `v` untouched on the GPU; the host counter `t`
 //!   still advances (the trainer, which reads the flag, may [`Adam::set_step_count`]).
+//!   Stats that count a non-finite word in their guard buffers (a batch's losses,
+//!   [`GradNorm::record_guarded`]) skip the step the same way, whatever `skip_nonfinite`.
 //! * Sparse groups (`skip_zero_grad`, for hash tables as in Instant-NGP) leave entries
 //!   whose gradient is exactly zero untouched, `m` and `v` included; bias correction
 //!   still uses the global `t`.

@@ -15,6 +15,12 @@
 //!           = 1                                          otherwise
 //! clipped g = clamp(g, -c, c) * scale
 //! ```
+//! Guard buffers ([`GradNorm::record_guarded`], a batch's per-ray losses) add only a
+//! count: `guard = number of NaN / +-Inf words in them`; any makes Adam skip the step
+//! whatever its `skip_nonfinite`, so a training step can run the loss, the backward
+//! and Adam in one submission and read the losses afterwards, and still change no
+//! parameter when its loss is not finite.
+//!
 //! `norm_eps` defaults to `f32::EPSILON` as in RegNeRF (mip-NeRF used 1e-7). RegNeRF
 //! logs `norm` as its `grad_norm` and `norm * scale` as `grad_norm_clipped`. Finite
 //! gradients whose squares overflow give an infinite norm and a scale of 0 (no step),
@@ -46,6 +52,7 @@ pub mod stat {
     pub const ABS_MAX: usize = 4;
     pub const CLIP_VALUE: usize = 5;
     pub const APPLIED: usize = 6;
+    pub const GUARD: usize = 7;
     /// Length of the stats buffer.
     pub const LEN: usize = 8;
 }
@@ -96,6 +103,8 @@ struct FinalParams {
     max_norm: f32,
     clip_value: f32,
     norm_eps: f32,
+    guards: u32,
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -157,10 +166,14 @@ pub struct GradStats {
     pub clip_value: f32,
     /// Whether the clip was already applied to the buffers in place.
     pub applied: bool,
+    /// Number of NaN / Inf words in the guard buffers (0 without guards).
+    pub guard_nonfinite: u32,
 }
 
 impl GradStats {
-    fn from_raw(s: &[f32]) -> Self {
+    /// The stats of a stats buffer read back (e.g. in a [`crate::gpu::ReadBatch`]).
+    pub fn from_buffer(s: &[f32]) -> Self {
+        assert_eq!(s.len(), stat::LEN, "a gradient stats buffer has {} values", stat::LEN);
         GradStats {
             raw_norm: s[stat::RAW_NORM],
             norm: s[stat::NORM],
@@ -169,8 +182,10 @@ impl GradStats {
             abs_max: s[stat::ABS_MAX],
             clip_value: s[stat::CLIP_VALUE],
             applied: s[stat::APPLIED] != 0.0,
+            guard_nonfinite: s[stat::GUARD] as u32,
         }
     }
+
 
     /// Whether every gradient element is finite (the NaN guard's question).
     pub fn all_finite(&self) -> bool {
@@ -180,6 +195,24 @@ impl GradStats {
     /// Norm of the gradients after both clips (`norm * scale`).
     pub fn clipped_norm(&self) -> f32 {
         self.norm * self.scale
+    }
+}
+
+/// A buffer whose words [`GradNorm::record_guarded`] checks for NaN / Inf: the first
+/// `words` 4-byte words of `buffer`. Every word must be a float or an integer below
+/// 2^23 (a count, padding), whose bits are a finite (subnormal) float.
+#[derive(Clone, Copy)]
+pub struct Guard<'a> {
+    buffer: &'a wgpu::Buffer,
+    words: usize,
+}
+
+impl<'a> Guard<'a> {
+    /// The first `len` elements of `buffer`.
+    pub fn of<T: bytemuck::Pod>(buffer: &'a GpuBuffer<T>, len: usize) -> Self {
+        assert!(len <= buffer.len(), "guard of {len} elements of a buffer of {}", buffer.len());
+        assert_eq!(std::mem::size_of::<T>() % 4, 0, "guarded elements are whole 4-byte words");
+        Self { buffer: &buffer.buffer, words: len * std::mem::size_of::<T>() / 4 }
     }
 }
 
@@ -213,9 +246,25 @@ impl GradNorm {
         grads: &[&GpuBuffer<f32>],
         clip: &ClipConfig,
     ) -> Result<(), OptimError> {
+        self.record_guarded(gpu, enc, grads, &[], clip)
+    }
+
+    /// [`GradNorm::record`] that also counts the NaN / Inf words of `guards` (a batch's
+    /// losses) into [`GradStats::guard_nonfinite`]; any makes Adam skip the step.
+    pub fn record_guarded(
+        &mut self,
+        gpu: &Gpu,
+        enc: &mut Encoder,
+        grads: &[&GpuBuffer<f32>],
+        guards: &[Guard],
+        clip: &ClipConfig,
+    ) -> Result<(), OptimError> {
         clip.validate()?;
-        let blocks: Vec<usize> = grads.iter().map(|g| g.len().div_ceil(BLOCK)).collect();
+        let parts: Vec<(&wgpu::Buffer, usize)> =
+            grads.iter().map(|g| (&g.buffer, g.len())).chain(guards.iter().map(|g| (g.buffer, g.words))).collect();
+        let blocks: Vec<usize> = parts.iter().map(|&(_, n)| n.div_ceil(BLOCK)).collect();
         let total: usize = blocks.iter().sum();
+        let gradient_blocks: usize = blocks[..grads.len()].iter().sum();
         if total > self.partials.len() {
             let cap = total.next_power_of_two();
             self.partials = GpuBuffer::zeros(gpu, "grad_norm.partials", cap)?;
@@ -224,12 +273,12 @@ impl GradNorm {
         let finalize = gpu.kernel(&FINALIZE)?;
         let max_dim = gpu.limits().max_compute_workgroups_per_dimension;
         let mut offset = 0usize;
-        for (g, &b) in grads.iter().zip(&blocks) {
+        for (&(buffer, n), &b) in parts.iter().zip(&blocks) {
             if b == 0 {
                 continue;
             }
             let params = PartialParams {
-                n: g.len() as u32,
+                n: n as u32,
                 offset: offset as u32,
                 blocks: b as u32,
                 clip_value: clip.max_value,
@@ -237,14 +286,16 @@ impl GradNorm {
             let params_buf = enc.params(&params);
             // grid_1d counts 64-thread groups: ask for `b` workgroups, folded.
             let grid = grid_1d((b * 64) as u32, max_dim);
-            enc.dispatch(&partial, &[&params_buf, &g.buffer, &self.partials.buffer], grid);
+            enc.dispatch(&partial, &[&params_buf, buffer, &self.partials.buffer], grid);
             offset += b;
         }
         let params = FinalParams {
-            count: total as u32,
+            count: gradient_blocks as u32,
             max_norm: clip.max_norm,
             clip_value: clip.max_value,
             norm_eps: clip.norm_eps,
+            guards: (total - gradient_blocks) as u32,
+            _pad: [0; 3],
         };
         let params_buf = enc.params(&params);
         enc.dispatch(&finalize, &[&params_buf, &self.partials.buffer, &self.stats.buffer], [1, 1, 1]);
@@ -272,7 +323,7 @@ impl GradNorm {
 
     /// Reads the stats back (waits for all submitted work).
     pub fn read(&self, gpu: &Gpu) -> Result<GradStats, OptimError> {
-        Ok(GradStats::from_raw(&self.stats.read(gpu)?))
+        Ok(GradStats::from_buffer(&self.stats.read(gpu)?))
     }
 
     /// [`GradNorm::record`], submit, [`GradNorm::read`].
@@ -297,7 +348,7 @@ mod wgsl_mirrors {
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
         crate::assert_wgsl_mirror!(PartialParams, "optim/grad_norm.wgsl", "PartialParams", [n, offset, blocks, clip_value]);
-        crate::assert_wgsl_mirror!(FinalParams, "optim/grad_norm.wgsl", "FinalParams", [count, max_norm, clip_value, norm_eps]);
+        crate::assert_wgsl_mirror!(FinalParams, "optim/grad_norm.wgsl", "FinalParams", [count, max_norm, clip_value, norm_eps, guards]);
         crate::assert_wgsl_mirror!(ClipParams, "optim/grad_norm.wgsl", "ClipParams", [n]);
     }
 }

@@ -36,7 +36,7 @@ pub mod schedule;
 mod tests;
 
 pub use adam::{Adam, AdamConfig, AdamState, GroupSpec, ParamGroup, WeightDecay};
-pub use grad::{ClipConfig, GradNorm, GradStats};
+pub use grad::{ClipConfig, GradNorm, GradStats, Guard};
 pub use schedule::{LrDecay, LrSchedule};
 
 use crate::gpu::GpuError;

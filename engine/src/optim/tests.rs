@@ -342,13 +342,19 @@ fn adam_fused_clip_matches_reference_and_in_place_clip() {
     }
 }
 
+/// `n` random parameters (also returned on the host) and `n` random gradients.
+fn one_random_group(gpu: &Gpu, rng: &mut SplitMix64, n: usize) -> (Vec<f32>, GpuBuffer<f32>, GpuBuffer<f32>) {
+    let p0 = random_vec(rng, n, 1.0);
+    let params = GpuBuffer::from_slice(gpu, "p", &p0).unwrap();
+    let grads = GpuBuffer::from_slice(gpu, "g", &random_vec(rng, n, 1.0)).unwrap();
+    (p0, params, grads)
+}
+
 #[test]
 fn adam_skips_a_step_with_nonfinite_gradients() {
     let gpu = gpu();
     let mut rng = SplitMix64::new(7);
-    let p0 = random_vec(&mut rng, 300, 1.0);
-    let params = GpuBuffer::from_slice(&gpu, "p", &p0).unwrap();
-    let grads = GpuBuffer::from_slice(&gpu, "g", &random_vec(&mut rng, 300, 1.0)).unwrap();
+    let (p0, params, grads) = one_random_group(&gpu, &mut rng, 300);
     let groups = [ParamGroup::new("p", &params, &grads)];
     let mut adam = Adam::for_groups(&gpu, &groups, AdamConfig::default()).unwrap();
     let mut norm = GradNorm::new(&gpu).unwrap();
@@ -376,6 +382,57 @@ fn adam_skips_a_step_with_nonfinite_gradients() {
     unguarded.step(&gpu, &groups, 1e-2, Some(&norm)).unwrap();
     let p2 = params.read(&gpu).unwrap();
     assert!((0..300).filter(|&i| i != 123).all(|i| p2[i] != p1[i]));
+}
+
+/// A non-finite word in a guard buffer (a batch's loss) skips Adam's step even with
+/// `skip_nonfinite` off, and changes nothing else in the stats: the gradients' norm,
+/// count and scale are those without guards. Guards of counts (small integers) and of
+/// extreme finite floats, across several reduction blocks, count nothing.
+#[test]
+fn a_nonfinite_guard_skips_the_step_and_leaves_the_gradient_stats() {
+    let gpu = gpu();
+    let mut rng = SplitMix64::new(17);
+    let (p0, params, grads) = one_random_group(&gpu, &mut rng, 500);
+    let groups = [ParamGroup::new("p", &params, &grads)];
+    let unguarded = AdamConfig { skip_nonfinite: false, ..Default::default() };
+    let mut adam = Adam::for_groups(&gpu, &groups, unguarded).unwrap();
+    let mut norm = GradNorm::new(&gpu).unwrap();
+    let clip = ClipConfig::regnerf();
+    let plain = norm.compute(&gpu, &ParamGroup::grads_of(&groups), &clip).unwrap();
+    assert_eq!(plain.guard_nonfinite, 0);
+
+    let mut losses = random_vec(&mut rng, 40_000, 10.0);
+    losses[0] = f32::MAX;
+    losses[39_999] = 1e-45;
+    let counts: Vec<[u32; 2]> = (0..300).map(|i| [i * 1000, (1 << 23) - 1]).collect();
+    let losses_buf = GpuBuffer::from_slice(&gpu, "losses", &losses).unwrap();
+    let counts_buf = GpuBuffer::from_slice(&gpu, "counts", &counts).unwrap();
+    let stats_with = |norm: &mut GradNorm, guards: &[Guard]| {
+        let mut enc = gpu.encoder();
+        norm.record_guarded(&gpu, &mut enc, &ParamGroup::grads_of(&groups), guards, &clip).unwrap();
+        enc.submit();
+        norm.read(&gpu).unwrap()
+    };
+    let finite = stats_with(&mut norm, &[Guard::of(&losses_buf, losses.len()), Guard::of(&counts_buf, counts.len())]);
+    assert_eq!(finite, plain, "finite guards change nothing");
+
+    // NaN and Inf in the second reduction block of the losses, and past the guarded
+    // prefix (not counted).
+    let mut bad = losses.clone();
+    bad[20_000] = f32::NAN;
+    bad[20_001] = f32::NEG_INFINITY;
+    bad[39_000] = f32::NAN;
+    losses_buf.write(&gpu, &bad);
+    let guarded = stats_with(&mut norm, &[Guard::of(&counts_buf, counts.len()), Guard::of(&losses_buf, 39_000)]);
+    assert_eq!(guarded.guard_nonfinite, 2);
+    assert_eq!(GradStats { guard_nonfinite: 0, ..guarded }, plain, "the gradients' own stats are unchanged");
+    adam.step(&gpu, &groups, 1e-2, Some(&norm)).unwrap();
+    assert_eq!(params.read(&gpu).unwrap(), p0, "a non-finite loss skips the step");
+    assert!(adam.moments("p").unwrap().0.read(&gpu).unwrap().iter().all(|&m| m == 0.0));
+    // The same stats without the guard do step: the skip above is the guard's.
+    stats_with(&mut norm, &[]);
+    adam.step(&gpu, &groups, 1e-2, Some(&norm)).unwrap();
+    assert_ne!(params.read(&gpu).unwrap(), p0);
 }
 
 #[test]

@@ -27,7 +27,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, KernelSpec};
 use crate::layout::{GpuRay, SampleBatch};
 
 use super::occupancy::OccupancyGeom;
@@ -147,17 +147,29 @@ impl Sampler {
         batch: &SampleBatch,
         jitter_seed: Option<u32>,
     ) -> Result<(), SamplerError> {
+        gpu.submit_recorded(|enc| self.record_sample(enc, march, rays, batch, jitter_seed))
+    }
+
+    /// [`Sampler::sample`] recorded into `enc` (the caller submits).
+    pub fn record_sample(
+        &mut self,
+        enc: &mut Encoder,
+        march: March<'_>,
+        rays: &GpuBuffer<GpuRay>,
+        batch: &SampleBatch,
+        jitter_seed: Option<u32>,
+    ) -> Result<(), SamplerError> {
+        let gpu = enc.gpu();
         let n_rays = batch.n_rays;
         assert!(rays.len() >= n_rays as usize, "{} rays for a batch of {n_rays}", rays.len());
         self.ensure_workspace(gpu, n_rays)?;
         let config = &self.config;
         let work = self.work.as_ref().unwrap();
         let dummy = &self.dummy.as_ref().unwrap().buffer;
-        let mut enc = gpu.encoder();
         let (geom, occupancy, intervals, interval_counts, bits) = match march {
             March::Uniform => (OccupancyGeom { res: 1, n_cells: 1, ..Default::default() }, 0, dummy, dummy, dummy),
             March::Occupancy(grid) => {
-                work.intervals.encode(gpu, &mut enc, grid, rays, n_rays)?;
+                work.intervals.encode(gpu, enc, grid, rays, n_rays)?;
                 (
                     grid.geom(),
                     1,
@@ -192,9 +204,8 @@ impl Sampler {
         ];
         let threads = n_rays.max(1);
         enc.dispatch_threads(&*gpu.kernel(&COUNT)?, &resources, threads);
-        work.scan.encode(gpu, &mut enc, &work.counts, &work.offsets, n_rays + 1)?;
+        work.scan.encode(gpu, enc, &work.counts, &work.offsets, n_rays + 1)?;
         enc.dispatch_threads(&*gpu.kernel(&WRITE)?, &resources, threads);
-        enc.submit();
         Ok(())
     }
 }

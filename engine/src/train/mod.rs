@@ -23,10 +23,10 @@
 //!   triplets, + the cross-view reprojection L_rp on the patches' rays, + depth TV on
 //!   the random-pose patches; rays cut by the sample capacity dropped) -> composite backward (+ the distortion, occlusion and orientation
 //!   priors)
-//!   -> loss readbacks
-//! Trainer: non-finite loss? -> TrainError::NonFinite, no parameter touched
 //! Pipeline::backward: zero grads -> field backward (second order through the normals)
-//! Trainer: grad norm / NaN check / clip -> Adam (GPU) -> StepStats
+//! Trainer: grad norm / NaN count of gradients and losses / clip -> Adam (GPU; skips the
+//!   step when a loss is not finite) -> the step's one readback: losses, counts and
+//!   gradient statistics -> non-finite loss? -> TrainError::NonFinite -> StepStats
 //! ```
 //! The total loss is `lambda1 L_c + lambda2 L_z + lambda3 L_n + lambda_dn L_dn +
 //! lambda_pl L_pl + lambda_rp L_rp + lambda_tv L_tv` plus the weighted priors (see
@@ -35,18 +35,21 @@
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.
-//! The host waits for the GPU twice per step, for logging and the NaN guard: after the
-//! losses, one batched readback of the rays dropped for the capacity, the sample
-//! counts, the batch's squared errors and, when their terms are on, the edge-guided,
-//! planarity and depth TV losses and the priors' per-ray terms; after Adam, the
-//! gradient statistics. An occupancy grid update reads its bitfield and density sum as
-//! well.
+//! The host waits for the GPU once per step, after Adam: one batched readback of the
+//! rays dropped for the capacity, the sample counts, the batch's squared errors and,
+//! when their terms are on, the edge-guided, planarity, reprojection and depth TV
+//! losses and the priors' per-ray terms, and the gradient statistics. An occupancy grid
+//! update reads its bitfield and density sum as well.
 //!
 //! Invariants:
-//! * A step whose loss or gradients are not finite changes no parameter (the loss is
-//!   read back before the field backward and Adam; Adam skips non-finite gradients on
-//!   the GPU) and is reported as [`TrainError::NonFinite`]; the caller stops and keeps
-//!   the last good checkpoint.
+//! * A step whose loss or gradients are not finite changes no parameter and is
+//!   reported as [`TrainError::NonFinite`]; the caller stops and keeps the last good
+//!   checkpoint. The loss is read after the backward and Adam ran, so the GPU guards
+//!   it: the gradient norm counts the NaN / Inf words of the loss buffers the host
+//!   reads ([`crate::optim::Guard`]) and Adam skips the step when there is any (and on
+//!   non-finite gradients when `optim.adam.skip_nonfinite`, the default); the trainer
+//!   then puts Adam's step counter back. (A loss that only the host's sum makes
+//!   infinite, from finite per-ray values, is reported but not guarded.)
 //! * Runs are deterministic given the config (seeded pixel choice, jitter, grid
 //!   cells), up to the order of float atomic adds on the GPU.
 //! * Checkpoints hold everything needed to resume: parameters, Adam state, step,
@@ -75,10 +78,10 @@ use std::path::{Path, PathBuf};
 use crate::data::{Camera, DataError, Scene};
 use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{Gpu, GpuError, ReadBatch};
 use crate::metrics::MetricsError;
 use crate::metrics::image::psnr_from_mse;
-use crate::optim::{Adam, GradNorm, OptimError, ParamGroup};
+use crate::optim::{Adam, GradNorm, GradStats, OptimError, ParamGroup};
 use crate::render::RenderError;
 use crate::sampler::SamplerError;
 use crate::layout as samples_gpu;
@@ -89,6 +92,7 @@ pub use evaluate::{Evaluation, ViewEvaluation, evaluate, evaluate_view};
 pub use model::{Model, RenderedView};
 pub use pipeline::{BatchLosses, Pipeline, StepPlan};
 pub use profile::{Stage, StageTimes};
+use profile::end_recorded_stage;
 pub use regnerf::RegNerfConfig;
 pub use run::{RunEnd, RunObserver, RunSummary, train_run, write_evaluation};
 
@@ -459,26 +463,40 @@ impl Trainer {
         self.model.update_occupancy(&gpu, step, self.model.occupancy_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);
-        let losses = self.pipeline.forward(&gpu, &mut self.model, &self.scene, batch, &plan, &mut self.profile)?;
-        // The loss is checked before anything touches the parameters: a non-finite
-        // loss need not give non-finite gradients (activations can flush NaN), so
-        // Adam's own skip of non-finite gradients is not enough on its own.
-        if let Err(e) = losses.check_finite(step) {
-            self.step += 1;
-            return Err(e);
-        }
-        self.end_stage(Stage::RenderAndLosses)?;
-        self.pipeline.backward(&gpu, &mut self.model, &plan)?;
-        self.end_stage(Stage::FieldBackward)?;
+        // The whole step goes into one encoder and one submission, with the readback at
+        // its end (profiling submits once per stage instead).
+        let mut enc = gpu.encoder();
+        self.pipeline.forward(&mut enc, &mut self.model, &self.scene, batch, &plan, &mut self.profile)?;
+        // Whether the sampler counted the rays' wanted samples (it may start at this step).
+        let cut = self.model.wanted_counts().is_some();
+        end_recorded_stage(&mut self.profile, &mut enc, Stage::RenderAndLosses)?;
+        self.pipeline.backward(&mut enc, &mut self.model, &plan)?;
+        end_recorded_stage(&mut self.profile, &mut enc, Stage::FieldBackward)?;
 
         // Schedules count steps from 1 (mip-NeRF convention).
         let lr = self.config().optim.schedule.lr(step + 1);
         let groups: Vec<ParamGroup> = self.model.field.params();
-        let mut enc = gpu.encoder();
-        self.grad_norm.record(&gpu, &mut enc, &ParamGroup::grads_of(&groups), &self.model.config.optim.clip)?;
+        // The losses guard the step on the GPU: Adam skips it when one is not finite,
+        // so the losses need not be read before the backward and Adam run.
+        let guards = self.pipeline.loss_guards(&plan);
+        self.grad_norm.record_guarded(&gpu, &mut enc, &ParamGroup::grads_of(&groups), &guards, &self.model.config.optim.clip)?;
         self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
-        enc.submit();
-        let grad = self.grad_norm.read(&gpu)?;
+        // The step's one wait: losses, the sampler's counts and the gradient stats.
+        let mut reads = ReadBatch::new();
+        let loss_slots = self.pipeline.add_loss_reads(&mut reads, &plan, cut);
+        let stats_slot = reads.add(self.grad_norm.stats(), self.grad_norm.stats().len());
+        let back = reads.read_after(enc)?;
+        let losses = self.pipeline.losses(&back, &loss_slots);
+        let grad = GradStats::from_buffer(&back.get(&stats_slot));
+        if let Err(e) = losses.check_finite(step) {
+            // Adam skipped the step on the GPU (its guard); its counter goes back too,
+            // so the optimizer is exactly as before the step.
+            if grad.guard_nonfinite > 0 {
+                self.adam.set_step_count(self.adam.step_count() - 1);
+            }
+            self.step += 1;
+            return Err(e);
+        }
         let counts = losses.samples;
         self.end_stage(Stage::Optimizer)?;
         if let Some(p) = &mut self.profile {

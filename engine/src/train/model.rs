@@ -10,7 +10,7 @@
 
 use crate::data::{Camera, Scene};
 use crate::field::{Field, Footprint, GridField, MlpField};
-use crate::gpu::{Gpu, GpuBuffer};
+use crate::gpu::{Encoder, Gpu, GpuBuffer};
 use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
 use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
 use crate::layout::{FieldOutputs, GpuRay, GpuSample, RayOutput, SampleBatch, SampleRange};
@@ -269,12 +269,17 @@ impl Model {
     /// Samples `bufs.rays[..n]` into `bufs.batch` (the first half of
     /// [`Model::sample_and_shade`]).
     pub(super) fn sample(&mut self, gpu: &Gpu, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
+        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed))
+    }
+
+    /// [`Model::sample`] recorded into `enc` (the caller submits).
+    pub(super) fn record_sample(&mut self, enc: &mut Encoder, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
             SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
             SamplerMode::Uniform => March::Uniform,
         };
-        self.sampler.sample(gpu, march, &bufs.rays, &bufs.batch, jitter_seed)?;
+        self.sampler.record_sample(enc, march, &bufs.rays, &bufs.batch, jitter_seed)?;
         Ok(())
     }
 

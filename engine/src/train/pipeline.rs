@@ -10,7 +10,8 @@
 //! is left to the trainer is what training needs beyond one batch: drawing batches,
 //! the optimizer, schedules and the step counter.
 //!
-//! A batch runs in two calls, so that the caller can check the losses in between:
+//! A batch runs in two calls; neither waits for the GPU (the caller reads the losses
+//! with its step's one readback, after the optimizer):
 //! ```text
 //! Pipeline::forward:
 //!   host: random-pose rays and planarity triplets appended; RegNeRF's annealing of
@@ -23,15 +24,18 @@
 //!     (its rays' training views written as their source) and RegNeRF's depth TV (add)
 //!     -> composite backward (+ the priors' gradients) -> dL/d field outputs
 //!     -> the list of the samples whose gradients are not zero (sampler's LiveCompaction)
-//!   one readback (one wait): the losses, rays dropped and the sampler's counts -> BatchLosses
 //! Pipeline::backward: the field's gradients zeroed, then the field backward over the
 //!   listed samples (a fifth to a quarter of a batch past early termination late in a run)
+//! then, for the caller: Pipeline::loss_guards (the loss buffers, for the optimizer's
+//!   NaN guard), Pipeline::add_loss_reads into its readback -> Pipeline::losses -> BatchLosses
 //! ```
 //!
 //! Invariants:
 //! * Neither call changes a parameter: [`Pipeline::forward`] leaves the field's
-//!   gradients alone too, so a caller that stops after it (a non-finite loss) leaves
-//!   the model as it was; [`Pipeline::backward`] overwrites them with this batch's.
+//!   gradients alone too; [`Pipeline::backward`] overwrites them with this batch's.
+//! * The loss buffers, the sampler's counts and the ray aux keep what the forward
+//!   wrote until the next forward (the backward and the optimizer write none of them),
+//!   so the caller reads them after the optimizer, and guards the optimizer with them.
 //! * The random-pose rays, then the planarity triplets' rays, follow the photometric
 //!   rays in one sample batch with zero photometric weight, so one forward and one
 //!   backward pass serve every term.
@@ -40,17 +44,18 @@
 //!   ([`Pipeline::grow_capacity`]).
 
 use crate::data::Scene;
-use crate::gpu::{Gpu, GpuBuffer, ReadBatch};
+use crate::gpu::{Encoder, Gpu, GpuBuffer, ReadBack, ReadBatch, ReadSlot};
+use crate::optim::Guard;
 use crate::loss::photometric::Recomposite;
 use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction};
-use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayOutput};
+use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayAux, RayOutput};
 
 use super::TrainError;
 use super::config::{BatchKind, RunConfig};
 use super::model::{BatchBuffers, Model};
-use super::profile::{Stage, StageTimes, end_stage};
+use super::profile::{Stage, StageTimes, end_recorded_stage};
 use super::rays::PixelBatch;
 
 /// What a step asks of the pipeline besides its batch: the loss weights in effect at
@@ -80,7 +85,7 @@ impl StepPlan {
     }
 }
 
-/// A batch's losses, read back after [`Pipeline::forward`]: unweighted, 0 when the term
+/// A batch's losses, read back after the step ([`Pipeline::losses`]): unweighted, 0 when the term
 /// is off.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct BatchLosses {
@@ -276,35 +281,35 @@ impl Pipeline {
         config.train.batch == BatchKind::Patches && batch.reg.len() == self.n as usize
     }
 
-    /// Runs `batch` (checked by [`Pipeline::check_batch`]) forward through `model`,
-    /// records every loss and the composite backward, and reads the losses back.
-    /// Touches no parameter and no field gradient (see the module doc). With profiling
-    /// on, charges the sampler and the field forward to their stages.
+    /// Runs `batch` (checked by [`Pipeline::check_batch`]) forward through `model` and
+    /// records every loss and the composite backward into `enc`, the step's encoder
+    /// (the batch's uploads are queued before it); waits for nothing (the losses are
+    /// read with the step's one readback, [`Pipeline::add_loss_reads`]). Touches no
+    /// parameter and no field gradient (see the module doc). With profiling on,
+    /// charges the sampler and the field forward to their stages.
     pub fn forward(
         &mut self,
-        gpu: &Gpu,
+        enc: &mut Encoder,
         model: &mut Model,
         scene: &Scene,
         batch: PixelBatch,
         plan: &StepPlan,
         profile: &mut Option<StageTimes>,
-    ) -> Result<BatchLosses, TrainError> {
-        self.upload(gpu, scene, &model.config, batch, plan);
-        model.sample(gpu, &self.bufs, Some(plan.jitter))?;
-        end_stage(profile, gpu, Stage::Sampler)?;
-        model.field.forward_for_backward(gpu, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
-        end_stage(profile, gpu, Stage::FieldForward)?;
-        let cut = model.wanted_counts().is_some();
-        self.record_render_and_losses(gpu, model, scene, plan)?;
-        self.read_losses(gpu, plan, cut)
+    ) -> Result<(), TrainError> {
+        self.upload(enc.gpu(), scene, &model.config, batch, plan);
+        model.record_sample(enc, &self.bufs, Some(plan.jitter))?;
+        end_recorded_stage(profile, enc, Stage::Sampler)?;
+        model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
+        end_recorded_stage(profile, enc, Stage::FieldForward)?;
+        self.record_render_and_losses(enc, model, scene, plan)
     }
 
-    /// The field's backward pass over the last [`Pipeline::forward`]: its gradients
-    /// zeroed, then this batch's added (second order through the normals when `L_n` or
-    /// the orientation prior is on).
-    pub fn backward(&self, gpu: &Gpu, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
-        model.field.zero_grads(gpu);
-        model.field.backward(gpu, &self.bufs.batch, &self.field_grads, Some(&self.live.0), plan.normals())?;
+    /// Records the field's backward pass over the last [`Pipeline::forward`] into
+    /// `enc`: its gradients zeroed, then this batch's added (second order through the
+    /// normals when `L_n` or the orientation prior is on).
+    pub fn backward(&self, enc: &mut Encoder, model: &mut Model, plan: &StepPlan) -> Result<(), TrainError> {
+        model.field.record_zero_grads(enc);
+        model.field.record_backward(enc, &self.bufs.batch, &self.field_grads, Some(&self.live.0), plan.normals())?;
         Ok(())
     }
 
@@ -360,49 +365,48 @@ impl Pipeline {
         self.targets.write(gpu, &targets);
     }
 
-    /// One encoder: the drop of capacity-cut rays, composite forward, the losses into
+    /// Records the drop of capacity-cut rays, composite forward, the losses into
     /// `d_rays`, composite backward into the per-sample field gradients.
-    fn record_render_and_losses(&self, gpu: &Gpu, model: &Model, scene: &Scene, plan: &StepPlan) -> Result<(), TrainError> {
+    fn record_render_and_losses(&self, enc: &mut Encoder, model: &Model, scene: &Scene, plan: &StepPlan) -> Result<(), TrainError> {
         let (bufs, n, n_tv) = (&self.bufs, self.n, self.n_tv);
         let n_all = self.rays_per_batch();
-        let mut enc = gpu.encoder();
+        let gpu = enc.gpu();
         // Rays cut by the sample capacity render without their far samples: out of
         // every loss (their weight and their patch's edge weight to 0).
         if let Some(wanted) = model.wanted_counts() {
             let pixels = plan.reg.is_some().then_some(&self.edge_reg.pixel);
-            self.drop_truncated.record(&mut enc, &bufs.batch.ranges, wanted, &self.targets, pixels, n);
+            self.drop_truncated.record(enc, &bufs.batch.ranges, wanted, &self.targets, pixels, n);
         }
-        self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
+        self.renderer.forward(enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
         let rays_out = &bufs.render_out.rays;
         let recomposite = self.random_background.as_ref().map(|(alpha, loaded_over)| Recomposite {
             aux: &bufs.render_out.aux,
             alpha,
             loaded_over: *loaded_over,
         });
-        self.photometric.record(&mut enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color);
+        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color);
         if let Some(w) = &plan.reg {
-            self.edge_reg.record(&mut enc, rays_out, &self.d_rays, n / 4, w);
+            self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
                 let (pixel, d_rays) = (&self.edge_reg.pixel, &self.d_rays);
-                self.depth_normal.record(&mut enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
+                self.depth_normal.record(enc, rays_out, &bufs.rays, pixel, d_rays, n / 4, &term);
             }
         }
         if let Some(term) = self.planarity_term(plan) {
-            self.planarity.record(&mut enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, &term, scene.ndc.is_some());
+            self.planarity.record(enc, rays_out, &self.d_rays, n + n_tv, self.n_triplets, &term, scene.ndc.is_some());
         }
         if let Some((term, _, lambda)) = self.reprojection_at(plan) {
             let delta = model.config.reg.reprojection_delta;
-            term.record(&mut enc, rays_out, &bufs.rays, &self.targets, &self.d_rays, n, lambda, delta);
+            term.record(enc, rays_out, &bufs.rays, &self.targets, &self.d_rays, n, lambda, delta);
         }
         if let Some(lambda) = plan.tv {
             let r = &model.config.regnerf;
             let acc_weight = r.acc_weight_for(scene);
-            self.depth_tv.record(&mut enc, rays_out, &bufs.rays, &self.d_rays, n, n_tv, r.patch_size, lambda, acc_weight);
+            self.depth_tv.record(enc, rays_out, &bufs.rays, &self.d_rays, n, n_tv, r.patch_size, lambda, acc_weight);
         }
-        self.renderer.backward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, &self.d_rays, &self.field_grads, false)?;
+        self.renderer.backward(enc, &bufs.batch, &bufs.field_out, &bufs.render_out, &self.d_rays, &self.field_grads, false)?;
         let (live, compaction) = &self.live;
-        compaction.record(gpu, &mut enc, &bufs.batch, &self.field_grads, plan.normals(), live)?;
-        enc.submit();
+        compaction.record(gpu, enc, &bufs.batch, &self.field_grads, plan.normals(), live)?;
         Ok(())
     }
 
@@ -420,44 +424,108 @@ impl Pipeline {
         (lambda > 0.0).then_some((term, position.as_slice(), lambda))
     }
 
-    /// The losses of the last batch and the sampler's counts, read back together (one
-    /// wait for the GPU). `cut`: whether the sampler counted the rays' wanted samples
-    /// (then the drop of cut rays ran).
-    fn read_losses(&self, gpu: &Gpu, plan: &StepPlan, cut: bool) -> Result<BatchLosses, TrainError> {
+    /// The per-ray (per-patch, per-triplet) loss buffers of the terms on at `plan`'s
+    /// step and the ray aux when the priors are on: what the host sums into
+    /// [`BatchLosses`] and the optimizer's guard checks for NaN / Inf (one list, so the
+    /// two cannot drift apart).
+    fn loss_terms(&self, plan: &StepPlan) -> LossTerms<'_> {
         let (n, quarter) = (self.n as usize, self.n as usize / 4);
         let dn_on = plan.reg.and_then(|w| w.depth_normal_term()).is_some();
-        let mut batch = ReadBatch::new();
-        let counts = batch.add(&self.bufs.batch.count, 2);
-        let dropped = cut.then(|| batch.add(self.drop_truncated.dropped_count(), 1));
-        let sq_error = batch.add(&self.photometric.sq_error, n);
-        let reg = plan.reg.is_some().then(|| batch.add(&self.edge_reg.patch_loss, quarter));
-        let depth_normal = dn_on.then(|| batch.add(&self.depth_normal.patch_loss, quarter));
-        let tv = plan.tv.is_some().then(|| batch.add(&self.depth_tv.ray_loss, self.n_tv as usize));
-        let planarity = self.planarity_term(plan).map(|_| batch.add(&self.planarity.triplet_loss, self.n_triplets as usize));
-        let reprojection = self.reprojection_at(plan).map(|(t, _, _)| batch.add(&t.ray_loss, n));
-        let aux = self.priors_on.then(|| batch.add(&self.bufs.render_out.aux, self.bufs.render_out.aux.len()));
-        let back = batch.read(gpu)?;
-        let rays_dropped = dropped.map_or(0, |d| back.get(&d)[0]);
-        let counts = back.get(&counts);
+        LossTerms {
+            sq_error: (&self.photometric.sq_error, n),
+            reg: plan.reg.is_some().then_some((&self.edge_reg.patch_loss, quarter)),
+            depth_normal: dn_on.then_some((&self.depth_normal.patch_loss, quarter)),
+            tv: plan.tv.is_some().then_some((&self.depth_tv.ray_loss, self.n_tv as usize)),
+            planarity: self.planarity_term(plan).map(|_| (&self.planarity.triplet_loss, self.n_triplets as usize)),
+            reprojection: self.reprojection_at(plan).map(|(t, _, _)| (&t.ray_loss, n)),
+            aux: self.priors_on.then_some(&self.bufs.render_out.aux),
+        }
+    }
+
+    /// The guard buffers of the last [`Pipeline::forward`] for
+    /// [`crate::optim::GradNorm::record_guarded`]: a NaN / Inf in any loss the host
+    /// reads makes Adam skip the step on the GPU.
+    pub fn loss_guards(&self, plan: &StepPlan) -> Vec<Guard<'_>> {
+        let t = self.loss_terms(plan);
+        let terms = [Some(t.sq_error), t.depth_normal, t.tv, t.planarity, t.reprojection];
+        let mut guards: Vec<Guard> = terms.into_iter().flatten().map(|(buffer, len)| Guard::of(buffer, len)).collect();
+        guards.extend(t.reg.map(|(buffer, len)| Guard::of(buffer, len)));
+        // RayAux holds floats, a sample count and padding: every word a finite float
+        // or a small integer, as a guard requires.
+        guards.extend(t.aux.map(|aux| Guard::of(aux, aux.len())));
+        guards
+    }
+
+    /// Adds the last batch's losses and the sampler's counts to `reads` (the step's one
+    /// readback); [`Pipeline::losses`] turns them into [`BatchLosses`]. `cut`: whether
+    /// the sampler counted the rays' wanted samples (then the drop of cut rays ran).
+    pub fn add_loss_reads<'a>(&'a self, reads: &mut ReadBatch<'a>, plan: &StepPlan, cut: bool) -> LossReads {
+        let t = self.loss_terms(plan);
+        let mut add = |term: Option<(&'a GpuBuffer<f32>, usize)>| term.map(|(buffer, len)| reads.add(buffer, len));
+        let (sq_error, depth_normal) = (add(Some(t.sq_error)).expect("always read"), add(t.depth_normal));
+        let (tv, planarity, reprojection) = (add(t.tv), add(t.planarity), add(t.reprojection));
+        LossReads {
+            reg: t.reg.map(|(buffer, len)| reads.add(buffer, len)),
+            counts: reads.add(&self.bufs.batch.count, 2),
+            dropped: cut.then(|| reads.add(self.drop_truncated.dropped_count(), 1)),
+            sq_error,
+            depth_normal,
+            tv,
+            planarity,
+            reprojection,
+            aux: t.aux.map(|aux| reads.add(aux, aux.len())),
+        }
+    }
+
+    /// The losses of [`Pipeline::add_loss_reads`]'s slots in `back`.
+    pub fn losses(&self, back: &ReadBack, slots: &LossReads) -> BatchLosses {
+        let rays_dropped = slots.dropped.as_ref().map_or(0, |d| back.get(d)[0]);
+        let counts = back.get(&slots.counts);
         let priors = *self.renderer.priors();
-        let p = aux.map(|a| priors.losses(&back.get(&a))).unwrap_or_default();
-        let reg = reg.map(|r| EdgeReg::losses_of(&back.get(&r))).unwrap_or_default();
-        Ok(BatchLosses {
-            color: Photometric::mse_of(&back.get(&sq_error), self.n.saturating_sub(rays_dropped).max(1) as f32),
+        let p = slots.aux.as_ref().map(|a| priors.losses(&back.get(a))).unwrap_or_default();
+        let reg = slots.reg.as_ref().map(|r| EdgeReg::losses_of(&back.get(r))).unwrap_or_default();
+        let sum = |slot: &Option<ReadSlot<f32>>| slot.as_ref().map_or(0.0, |s| sum_terms(&back.get(s)));
+        BatchLosses {
+            color: Photometric::mse_of(&back.get(&slots.sq_error), self.n.saturating_sub(rays_dropped).max(1) as f32),
             depth: reg.depth,
             normal: reg.normal,
-            tv: tv.map_or(0.0, |t| sum_terms(&back.get(&t))),
+            tv: sum(&slots.tv),
             distortion: p.distortion,
             occlusion: p.occlusion,
             orientation: p.orientation,
-            depth_normal: depth_normal.map_or(0.0, |d| sum_terms(&back.get(&d))),
-            planarity: planarity.map_or(0.0, |p| sum_terms(&back.get(&p))),
-            reprojection: reprojection.map_or(0.0, |r| sum_terms(&back.get(&r))),
+            depth_normal: sum(&slots.depth_normal),
+            planarity: sum(&slots.planarity),
+            reprojection: sum(&slots.reprojection),
             rays_dropped,
             samples: [counts[0], counts[1]],
             priors,
-        })
+        }
     }
+}
+
+/// The loss buffers of one step ([`Pipeline::loss_terms`]): each with the elements
+/// read, `None` when its term is off.
+struct LossTerms<'a> {
+    sq_error: (&'a GpuBuffer<f32>, usize),
+    reg: Option<(&'a GpuBuffer<[f32; 2]>, usize)>,
+    depth_normal: Option<(&'a GpuBuffer<f32>, usize)>,
+    tv: Option<(&'a GpuBuffer<f32>, usize)>,
+    planarity: Option<(&'a GpuBuffer<f32>, usize)>,
+    reprojection: Option<(&'a GpuBuffer<f32>, usize)>,
+    aux: Option<&'a GpuBuffer<RayAux>>,
+}
+
+/// Where a step's losses are in its readback ([`Pipeline::add_loss_reads`]).
+pub struct LossReads {
+    counts: ReadSlot<u32>,
+    dropped: Option<ReadSlot<u32>>,
+    sq_error: ReadSlot<f32>,
+    reg: Option<ReadSlot<[f32; 2]>>,
+    depth_normal: Option<ReadSlot<f32>>,
+    tv: Option<ReadSlot<f32>>,
+    planarity: Option<ReadSlot<f32>>,
+    reprojection: Option<ReadSlot<f32>>,
+    aux: Option<ReadSlot<RayAux>>,
 }
 
 /// The reprojection term over batches of `n` photometric rays of `scene`, with the

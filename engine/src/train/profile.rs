@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{Encoder, Gpu, GpuError};
 
 /// The stages of a step, in order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,6 +97,15 @@ impl StageTimes {
     pub fn total(&self) -> f64 {
         self.seconds.iter().sum()
     }
+}
+
+/// [`end_stage`] for a stage recorded into `enc`, a step's one encoder: with profiling
+/// on, what `enc` holds is submitted first (so a profiled step submits once per stage).
+pub(super) fn end_recorded_stage(profile: &mut Option<StageTimes>, enc: &mut Encoder, stage: Stage) -> Result<(), GpuError> {
+    if profile.is_some() {
+        enc.flush();
+    }
+    end_stage(profile, enc.gpu(), stage)
 }
 
 /// With profiling on (`profile` is `Some`), waits for the GPU and charges the time since

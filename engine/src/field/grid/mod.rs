@@ -206,7 +206,7 @@ use serde::{Deserialize, Serialize};
 use super::{Field, FieldError, NamedArray, ParamGroup};
 use std::sync::{Arc, OnceLock};
 
-use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
 use crate::layout::{FieldGrads, FieldOutputs, LiveSamples, SampleBatch};
@@ -900,7 +900,8 @@ impl GridField {
     }
 
     /// The forward of `batch`, keeping its encoding for the backward when `keep`.
-    fn run_forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool, keep: bool) -> Result<(), GpuError> {
+    fn run_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool, keep: bool) -> Result<(), GpuError> {
+        let gpu = enc.gpu();
         let cap = batch.capacity;
         out.assert_capacity(cap, "forward: FieldOutputs");
         if keep {
@@ -916,10 +917,9 @@ impl GridField {
         self.ensure_indirect(gpu, 1);
         let args = self.indirect.as_ref().expect("made above");
         let (mlp_uniform, table) = (&self.mlp_uniform, &self.table.buffer);
-        let mut enc = gpu.encoder();
         let params = enc.params(&self.dispatch_params(cap, flags, 0, cap));
         enc.copy(&self.mlp.buffer, mlp_uniform, self.layout.mlp_len as u64 * 4);
-        args.record(&mut enc, &batch.count.buffer, cap, cap.max(1), 1)?;
+        args.record(enc, &batch.count.buffer, cap, cap.max(1), 1)?;
         let mut bindings = vec![
             &params,
             table,
@@ -932,8 +932,7 @@ impl GridField {
         if keep {
             bindings.push(&self.scratch.as_ref().expect("ensured above").buffer.buffer);
         }
-        args.dispatch(&mut enc, &kernel, &bindings, 0);
-        enc.submit();
+        args.dispatch(enc, &kernel, &bindings, 0);
         self.kept = keep.then(|| KeptEncoding {
             samples: batch.samples.buffer.clone(),
             normals,
@@ -964,18 +963,26 @@ impl Field for GridField {
         Ok(())
     }
 
-    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
-        self.run_forward(gpu, batch, out, normals, false)
+    fn record_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
+        self.run_forward(enc, batch, out, normals, false)
     }
 
-    fn forward_for_backward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    fn record_forward_for_backward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
     -> Result<(), GpuError> {
         let keep = self.config.keep_encoding;
-        self.run_forward(gpu, batch, out, normals, keep)
+        self.run_forward(enc, batch, out, normals, keep)
     }
 
-    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, live: Option<&LiveSamples>, normal_grads: bool)
-    -> Result<(), GpuError> {
+    fn record_backward(
+        &mut self,
+        enc: &mut Encoder,
+        batch: &SampleBatch,
+        grads: &FieldGrads,
+        live: Option<&LiveSamples>,
+        normal_grads: bool,
+    ) -> Result<(), GpuError> {
+        let gpu = enc.gpu();
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");
         // With a live list, its count takes count[0]'s place and chunk k runs the list's
@@ -1020,18 +1027,17 @@ impl Field for GridField {
         }
         let flags = (if normal_grads { FLAG_NORMALS } else { 0 }) | (if live.is_some() { FLAG_LIVE } else { 0 });
         let args = self.indirect.as_ref().expect("made above");
-        let mut enc = gpu.encoder();
         if normal_grads {
             enc.clear(&self.normal_m.buffer);
         }
         enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
-        args.record(&mut enc, count, cap, chunk, n_chunks)?;
+        args.record(enc, count, cap, chunk, n_chunks)?;
         let mut start = 0u32;
         while start < cap {
             let len = chunk.min(cap - start);
             let params = enc.params(&self.dispatch_params(cap, flags, start, len));
             args.dispatch(
-                &mut enc,
+                enc,
                 &backward,
                 &[
                     &params,
@@ -1084,7 +1090,6 @@ impl Field for GridField {
                 l.width as u32,
             );
         }
-        enc.submit();
         Ok(())
     }
 
@@ -1106,11 +1111,9 @@ impl Field for GridField {
         ]
     }
 
-    fn zero_grads(&self, gpu: &Gpu) {
-        let mut enc = gpu.encoder();
+    fn record_zero_grads(&self, enc: &mut Encoder) {
         enc.clear(&self.table_grad.buffer);
         enc.clear(&self.mlp_grad.buffer);
-        enc.submit();
     }
 
     fn export(&self, gpu: &Gpu) -> Result<Vec<NamedArray>, GpuError> {

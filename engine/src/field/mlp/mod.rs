@@ -82,7 +82,7 @@ pub use config::{MlpConfig, PositionEncoding};
 use gemm::{Dense, Kernels, View};
 
 use super::{Field, FieldError, NamedArray, ParamGroup};
-use crate::gpu::{Binding, Gpu, GpuBuffer, GpuError, KernelSpec};
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::{FieldGrads, FieldOutputs, GpuSample, LiveSamples, SampleBatch};
 
 /// Name of the parameter group.
@@ -411,7 +411,7 @@ impl MlpField {
 
     /// Encoding, trunk and density head of one chunk, and (with `color`) the colour
     /// branch; leaves every activation in `work`.
-    fn chunk_forward(&self, gpu: &Gpu, enc: &mut crate::gpu::Encoder, input: Input, start: u32, n: u32, streams: u32, color: bool)
+    fn chunk_forward(&self, gpu: &Gpu, enc: &mut Encoder, input: Input, start: u32, n: u32, streams: u32, color: bool)
     -> Result<(), GpuError> {
         let l = &self.layout;
         let k = &self.kernels;
@@ -441,7 +441,7 @@ impl MlpField {
     }
 
     /// Backward of one chunk whose activations are in `work`, adding into `grads`.
-    fn chunk_backward(&self, gpu: &Gpu, enc: &mut crate::gpu::Encoder, grads: &FieldGrads, start: u32, n: u32, streams: u32)
+    fn chunk_backward(&self, gpu: &Gpu, enc: &mut Encoder, grads: &FieldGrads, start: u32, n: u32, streams: u32)
     -> Result<(), GpuError> {
         let l = &self.layout;
         let k = &self.kernels;
@@ -504,8 +504,11 @@ impl MlpField {
         (0..count.div_ceil(chunk)).map(move |c| (c * chunk, chunk.min(count - c * chunk)))
     }
 
-    fn batch_count(gpu: &Gpu, batch: &SampleBatch) -> Result<u32, GpuError> {
-        Ok(batch.count.read(gpu)?[0].min(batch.capacity))
+    /// The batch's sample count, read on the host: what `enc` recorded (the sampler)
+    /// is submitted first, so this backend waits here, unlike the grid.
+    fn batch_count(enc: &mut Encoder, batch: &SampleBatch) -> Result<u32, GpuError> {
+        enc.flush();
+        Ok(batch.count.read(enc.gpu())?[0].min(batch.capacity))
     }
 }
 
@@ -534,16 +537,17 @@ impl Field for MlpField {
         Ok(())
     }
 
-    fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
+    fn record_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
+    -> Result<(), GpuError> {
         let cap = batch.capacity;
         out.assert_capacity(cap, "forward: FieldOutputs");
-        let count = Self::batch_count(gpu, batch)?;
+        let count = Self::batch_count(enc, batch)?;
+        let gpu = enc.gpu();
         let streams = if normals { 4 } else { 1 };
         let heads = gpu.kernel(&HEADS)?;
         self.cached.set(None);
         for (start, n) in self.chunks(count) {
-            let mut enc = gpu.encoder();
-            self.chunk_forward(gpu, &mut enc, Input::Samples(&batch.samples), start, n, streams, true)?;
+            self.chunk_forward(gpu, enc, Input::Samples(&batch.samples), start, n, streams, true)?;
             let flags = FLAG_COLOR | if normals { FLAG_NORMALS } else { 0 };
             let u = enc.params(&self.uniform(n, start, streams, flags));
             let wk = &self.work;
@@ -552,7 +556,6 @@ impl Field for MlpField {
                 &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.rgb_density.buffer, &out.normal.buffer],
                 n,
             );
-            enc.submit();
             self.cached.set(Some(CacheKey { batch: batch as *const _ as usize, start, len: n, streams }));
         }
         Ok(())
@@ -560,22 +563,27 @@ impl Field for MlpField {
 
     /// Runs every sample: the list of live samples is not used (the MLP's chunked
     /// matrix kernels take contiguous samples; zero-gradient ones add exact zeros).
-    fn backward(&mut self, gpu: &Gpu, batch: &SampleBatch, grads: &FieldGrads, _live: Option<&LiveSamples>, normal_grads: bool)
-    -> Result<(), GpuError> {
+    fn record_backward(
+        &mut self,
+        enc: &mut Encoder,
+        batch: &SampleBatch,
+        grads: &FieldGrads,
+        _live: Option<&LiveSamples>,
+        normal_grads: bool,
+    ) -> Result<(), GpuError> {
         let cap = batch.capacity;
         grads.assert_capacity(cap, "backward: FieldGrads");
-        let count = Self::batch_count(gpu, batch)?;
+        let count = Self::batch_count(enc, batch)?;
+        let gpu = enc.gpu();
         let streams = if normal_grads { 4 } else { 1 };
         // Last chunk first: its activations may still be in place.
         for (start, n) in self.chunks(count).rev() {
             let key = CacheKey { batch: batch as *const _ as usize, start, len: n, streams };
-            let mut enc = gpu.encoder();
             if self.cached.get() != Some(key) {
-                self.chunk_forward(gpu, &mut enc, Input::Samples(&batch.samples), start, n, streams, true)?;
+                self.chunk_forward(gpu, enc, Input::Samples(&batch.samples), start, n, streams, true)?;
                 self.cached.set(Some(key));
             }
-            self.chunk_backward(gpu, &mut enc, grads, start, n, streams)?;
-            enc.submit();
+            self.chunk_backward(gpu, enc, grads, start, n, streams)?;
         }
         Ok(())
     }
@@ -584,8 +592,8 @@ impl Field for MlpField {
         vec![ParamGroup::new(PARAMS_NAME, &self.params, &self.grads).lr_scale(self.config.lr_scale)]
     }
 
-    fn zero_grads(&self, gpu: &Gpu) {
-        self.grads.clear(gpu);
+    fn record_zero_grads(&self, enc: &mut Encoder) {
+        enc.clear(&self.grads.buffer);
     }
 
     fn export(&self, gpu: &Gpu) -> Result<Vec<NamedArray>, GpuError> {
