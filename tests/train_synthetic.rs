@@ -151,12 +151,15 @@ fn non_finite_loss_stops_training_without_updating_parameters() {
     }
 }
 
-/// A training step is one submission to the GPU and one wait (its readback at the end),
-/// on pixel batches and on 3-view patch batches with the edge-guided terms and the
-/// priors on; the log's figures of such steps are finite. Steps 1-5 do not update the
-/// occupancy grid (every 16 steps), which submits and reads on its own.
+/// A training step is one submission to the GPU, on pixel batches and on 3-view patch
+/// batches with the edge-guided terms and the priors on. Steps read back one step late
+/// (`step_pipelined`, as `train_run` takes them) are the steps of `step`: the same
+/// figures (step 0 bit for bit; later ones up to the order of float atomic adds), and
+/// a non-finite loss is reported one call late with parameters and optimizer as they
+/// were, both steps it hit skipped. Steps 1-5 do not update the occupancy grid (every
+/// 16 steps), which submits and reads on its own.
 #[test]
-fn a_training_step_submits_once() {
+fn pipelined_steps_submit_once_and_match_plain_steps() {
     let patches = ["train.batch=patches", "reg.depth=true", "reg.normal=true", "scene.views=3", "reg.start_step=0"];
     let every_term = [&patches[..], &["reg.warmup_steps=0", "priors.distortion=0.01", "priors.occlusion=0.01"]].concat();
     for settings in [&[][..], &every_term[..]] {
@@ -166,16 +169,43 @@ fn a_training_step_submits_once() {
         }
         let views = config.scene.views;
         let scene = Scene::load(&config.scene.path, &LoadOptions { views, ..Default::default() }).unwrap();
+        let mut plain = Trainer::new(test_gpu(false), scene.clone(), config.clone()).unwrap();
+        let expected: Vec<_> = (0..6).map(|_| plain.step().unwrap()).collect();
+
         // A context of its own: the submission counter is shared by a context's clones,
         // and other tests run in parallel on the shared test GPU.
         let gpu = edgenerf::gpu::Gpu::new(&edgenerf::gpu::GpuOptions::default()).unwrap();
         let mut trainer = Trainer::new(gpu.clone(), scene, config).unwrap();
-        trainer.step().unwrap();
-        for _ in 1..6 {
+        let mut got = Vec::new();
+        for i in 0..6 {
             let before = gpu.submissions();
-            let stats = trainer.step().unwrap();
-            assert_eq!(gpu.submissions() - before, 1, "{settings:?}: submissions in step {}", stats.step);
-            assert!(stats.loss.is_finite() && stats.grad_norm.is_finite(), "{settings:?}");
+            got.extend(trainer.step_pipelined(i == 5).unwrap());
+            if i > 0 {
+                assert_eq!(gpu.submissions() - before, 1, "{settings:?}: submissions in step {i}");
+            }
+            assert_eq!(got.len(), if i == 5 { 6 } else { i }, "{settings:?}: steps read back after call {i}");
+        }
+        assert_eq!(expected[0].loss.to_bits(), got[0].loss.to_bits(), "{settings:?}: step 0");
+        for (e, g) in expected.iter().zip(&got) {
+            assert_eq!(e.step, g.step);
+            let close = |a: f32, b: f32| (a - b).abs() <= 1e-3 * a.abs().max(1e-6);
+            assert!(close(e.loss, g.loss) && close(e.grad_norm, g.grad_norm), "{settings:?}: step {} {e:?} vs {g:?}", e.step);
+        }
+
+        for &v in &trainer.scene.split.train.clone() {
+            trainer.scene.views[v].image.data.fill(f32::NAN);
+        }
+        let before = trainer.checkpoint().unwrap();
+        assert!(trainer.step_pipelined(false).unwrap().is_empty(), "step 6 is in flight");
+        match trainer.step_pipelined(false) {
+            Err(TrainError::NonFinite { step: 6, what }) => assert!(what.contains("loss"), "{what}"),
+            other => panic!("expected step 6 to fail, got {other:?}"),
+        }
+        assert!(matches!(trainer.finish_pending(), Err(TrainError::NonFinite { step: 7, .. })), "step 7 fails too");
+        let after = trainer.checkpoint().unwrap();
+        assert_same_params(&after.field, &before.field, "no parameter changed");
+        for ((name, a), (_, b)) in after.optimizer.iter().zip(&before.optimizer) {
+            assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "{settings:?}: {name} changed");
         }
     }
 }

@@ -476,7 +476,7 @@ impl<'g> Encoder<'g> {
     pub fn flush(&mut self) {
         let fresh = self.gpu.device.create_command_encoder(&Default::default());
         let recorded = std::mem::replace(&mut self.encoder, fresh);
-        self.gpu.submit(recorded.finish());
+        let _ = self.gpu.submit(recorded.finish());
     }
 
     /// A compute pass with `kernel`'s pipeline and `resources` bound.
@@ -524,9 +524,10 @@ impl<'g> Encoder<'g> {
         self.encoder.clear_buffer(buffer, 0, None);
     }
 
-    /// Submits everything recorded (does not wait).
-    pub fn submit(self) {
-        self.gpu.submit(self.encoder.finish());
+    /// Submits everything recorded (does not wait); [`Gpu::wait_for`](super::Gpu::wait_for)
+    /// takes the returned index.
+    pub fn submit(self) -> wgpu::SubmissionIndex {
+        self.gpu.submit(self.encoder.finish())
     }
 }
 

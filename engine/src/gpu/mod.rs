@@ -35,7 +35,7 @@ pub use buffer::GpuBuffer;
 pub use indirect::IndirectArgs;
 pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
 pub use kernel_timing::{KernelTimes, KernelTotal};
-pub use readback::{ReadBack, ReadBatch, ReadSlot};
+pub use readback::{PendingRead, ReadBack, ReadBatch, ReadSlot};
 
 /// What to install when no Vulkan driver is found.
 pub const DRIVER_HINT: &str = "install a Vulkan driver: on Debian/Ubuntu without a GPU run \
@@ -280,15 +280,23 @@ impl Gpu {
 
     /// Submits one command buffer (every submission of the engine goes through here, so
     /// [`Gpu::submissions`] counts them).
-    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) {
+    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
         self.submissions.fetch_add(1, Ordering::Relaxed);
-        self.queue.submit([commands]);
+        self.queue.submit([commands])
     }
 
     /// Command buffers submitted so far by this context and its clones: a training step
     /// submits one ([`crate::train::Trainer::step`]).
     pub fn submissions(&self) -> u64 {
         self.submissions.load(Ordering::Relaxed)
+    }
+
+    /// Blocks until `submission` (and every earlier one) is done; later ones may still run.
+    pub fn wait_for(&self, submission: wgpu::SubmissionIndex) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
+            .map(|_| ())
+            .map_err(|e| GpuError::Device(e.to_string()))
     }
 
     /// Blocks until all submitted work is done.

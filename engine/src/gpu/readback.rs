@@ -53,7 +53,15 @@ impl<'a> ReadBatch<'a> {
 
     /// [`ReadBatch::read`] at the end of `enc`: the copies are recorded after what
     /// `enc` holds and go out in its one submission (a training step's only one).
-    pub fn read_after(self, mut enc: Encoder) -> Result<ReadBack, GpuError> {
+    pub fn read_after(self, enc: Encoder) -> Result<ReadBack, GpuError> {
+        let gpu = enc.gpu();
+        self.submit_after(enc).wait(gpu)
+    }
+
+    /// Records the copies at the end of `enc` and submits it, without waiting: the
+    /// values are read by [`PendingRead::wait`], e.g. after the host has recorded and
+    /// submitted the next training step (a readback deferred by a step).
+    pub fn submit_after(self, mut enc: Encoder) -> PendingRead {
         let gpu = enc.gpu();
         let mut ranges = Vec::with_capacity(self.parts.len());
         let mut total = 0u64;
@@ -65,7 +73,7 @@ impl<'a> ReadBatch<'a> {
         }
         if total == 0 {
             enc.submit();
-            return Ok(ReadBack { bytes: Vec::new(), ranges });
+            return PendingRead { staging: None, ranges };
         }
         let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -78,21 +86,43 @@ impl<'a> ReadBatch<'a> {
                 enc.copy_at(buffer, &staging, range.start as u64, *bytes);
             }
         }
-        enc.submit();
-        let slice = staging.slice(..);
+        let submission = enc.submit();
         let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        gpu.wait()?;
-        rx.recv()
+        PendingRead { staging: Some((staging, submission, rx)), ranges }
+    }
+}
+
+/// A [`ReadBatch`] submitted and not yet read ([`ReadBatch::submit_after`]).
+pub struct PendingRead {
+    /// The staging buffer, the submission that fills it, and its map's result (`None`:
+    /// nothing to read).
+    staging: Option<(wgpu::Buffer, wgpu::SubmissionIndex, MapResult)>,
+    ranges: Vec<std::ops::Range<usize>>,
+}
+
+type MapResult = std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>;
+
+impl PendingRead {
+    /// Waits for the submission that holds the copies (and so for every earlier one;
+    /// later submissions may still run) and returns the values.
+    pub fn wait(self, gpu: &Gpu) -> Result<ReadBack, GpuError> {
+        let Some((staging, submission, mapped)) = self.staging else {
+            return Ok(ReadBack { bytes: Vec::new(), ranges: self.ranges });
+        };
+        gpu.wait_for(submission)?;
+        mapped
+            .recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let slice = staging.slice(..);
         let view = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
         let bytes = view.to_vec();
         drop(view);
         staging.unmap();
-        Ok(ReadBack { bytes, ranges })
+        Ok(ReadBack { bytes, ranges: self.ranges })
     }
 }
 

@@ -35,11 +35,14 @@
 //! [`regnerf`] and [`crate::render::priors`]). The edge masks of the training views are
 //! given by the caller (e.g. from a cache next to the run) or computed once, at the
 //! first step that draws patches, so rendering a checkpoint never computes them.
-//! The host waits for the GPU once per step, after Adam: one batched readback of the
-//! rays dropped for the capacity, the sample counts, the batch's squared errors and,
-//! when their terms are on, the edge-guided, planarity, reprojection and depth TV
-//! losses and the priors' per-ray terms, and the gradient statistics. An occupancy grid
-//! update reads its bitfield and density sum as well.
+//! A step is one submission and one wait: after Adam, one batched readback of the rays
+//! dropped for the capacity, the sample counts, the batch's squared errors and, when
+//! their terms are on, the edge-guided, planarity, reprojection and depth TV losses and
+//! the priors' per-ray terms, and the gradient statistics. An occupancy grid update
+//! reads its bitfield and density sum as well. [`Trainer::step`] waits for its own
+//! readback; [`Trainer::step_pipelined`] (what [`run::train_run`] and `edgenerf speed`
+//! use) waits for the previous step's instead, after submitting its own, so the host
+//! draws, uploads and records a step while the GPU runs the one before.
 //!
 //! Invariants:
 //! * A step whose loss or gradients are not finite changes no parameter and is
@@ -78,7 +81,7 @@ use std::path::{Path, PathBuf};
 use crate::data::{Camera, DataError, Scene};
 use crate::edges::{EdgeError, EdgeMask};
 use crate::field::FieldError;
-use crate::gpu::{Gpu, GpuError, ReadBatch};
+use crate::gpu::{Gpu, GpuError, PendingRead, ReadBatch, ReadSlot};
 use crate::metrics::MetricsError;
 use crate::metrics::image::psnr_from_mse;
 use crate::optim::{Adam, GradNorm, GradStats, OptimError, ParamGroup};
@@ -90,7 +93,7 @@ pub use checkpoint::Checkpoint;
 pub use config::{Backend, BatchKind, LevelAnneal, RunConfig, SceneConfig, TrainConfig};
 pub use evaluate::{Evaluation, ViewEvaluation, evaluate, evaluate_view};
 pub use model::{Model, RenderedView};
-pub use pipeline::{BatchLosses, Pipeline, StepPlan};
+pub use pipeline::{BatchLosses, LossReads, Pipeline, StepPlan};
 pub use profile::{Stage, StageTimes};
 use profile::end_recorded_stage;
 pub use regnerf::RegNerfConfig;
@@ -286,8 +289,24 @@ pub struct Trainer {
     /// first step that draws patches unless given (rendering never needs them).
     edge_masks: Option<Vec<EdgeMask>>,
     step: u64,
+    /// The step [`Trainer::step_pipelined`] submitted and has not read back yet.
+    in_flight: Option<InFlight>,
     /// Per-stage timing ([`profile`]); `None`: off.
     profile: Option<StageTimes>,
+}
+
+/// A step submitted with its readback not yet waited for: what its [`StepStats`] need
+/// besides the values read back.
+struct InFlight {
+    step: u64,
+    plan: StepPlan,
+    lr: f32,
+    n_rays: u32,
+    sample_capacity: u32,
+    occupied_fraction: f32,
+    losses: LossReads,
+    stats: ReadSlot<f32>,
+    read: PendingRead,
 }
 
 impl Trainer {
@@ -344,6 +363,7 @@ impl Trainer {
             model,
             adam,
             step: 0,
+            in_flight: None,
             profile: None,
         })
     }
@@ -450,7 +470,48 @@ impl Trainer {
     /// batches carry their edge masks in [`rays::PixelBatch::reg`]; the regularizers
     /// run on them when `train.batch` is `patches`). With RegNeRF's depth TV on, the
     /// batch's random-pose patches are used, or drawn for the step when it has none.
-    pub fn step_on(&mut self, mut batch: rays::PixelBatch) -> Result<StepStats, TrainError> {
+    ///
+    /// Panics when a step of [`Trainer::step_pipelined`] is still in flight (finish it
+    /// with [`Trainer::finish_pending`] first).
+    pub fn step_on(&mut self, batch: rays::PixelBatch) -> Result<StepStats, TrainError> {
+        assert!(self.in_flight.is_none(), "Trainer::step_on with a pipelined step in flight: call finish_pending first");
+        let submitted = self.submit_step(batch)?;
+        self.complete(submitted)
+    }
+
+    /// One step with its readback deferred: submits this step, then reads back and
+    /// returns the one submitted before it (`None` at the first), so the host draws and
+    /// records a step while the GPU still runs the previous one. With `drain`, or with
+    /// profiling on, this step is read back too (then none is left in flight). The
+    /// steps are exactly those of [`Trainer::step`]; only when their figures come back
+    /// differs. A non-finite loss or gradient of the earlier step is reported here,
+    /// when the later one already ran (its own guard still applies to it).
+    pub fn step_pipelined(&mut self, drain: bool) -> Result<Vec<StepStats>, TrainError> {
+        if let Some(p) = &mut self.profile {
+            p.begin();
+        }
+        let batch = self.draw_batch()?;
+        self.end_stage(Stage::Batch)?;
+        let submitted = self.submit_step(batch)?;
+        let mut done = Vec::with_capacity(2);
+        let previous = self.in_flight.replace(submitted);
+        if let Some(previous) = previous {
+            done.push(self.complete(previous)?);
+        }
+        if drain || self.profile.is_some() {
+            done.extend(self.finish_pending()?);
+        }
+        Ok(done)
+    }
+
+    /// Reads back the step [`Trainer::step_pipelined`] left in flight, if any.
+    pub fn finish_pending(&mut self) -> Result<Option<StepStats>, TrainError> {
+        self.in_flight.take().map(|f| self.complete(f)).transpose()
+    }
+
+    /// Records and submits step `self.step` on `batch` (one encoder, one submission;
+    /// the losses, counts and gradient stats copied out at its end) and counts it.
+    fn submit_step(&mut self, mut batch: rays::PixelBatch) -> Result<InFlight, TrainError> {
         let (gpu, step) = (self.gpu.clone(), self.step);
         if self.pipeline.tv_rays() > 0 && batch.tv_rays.is_empty() {
             (batch.tv_rays, batch.tv_z_scale) = self.draw_tv_patches();
@@ -481,20 +542,37 @@ impl Trainer {
         let guards = self.pipeline.loss_guards(&plan);
         self.grad_norm.record_guarded(&gpu, &mut enc, &ParamGroup::grads_of(&groups), &guards, &self.model.config.optim.clip)?;
         self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
-        // The step's one wait: losses, the sampler's counts and the gradient stats.
+        // The step's one wait, in Trainer::complete: losses, counts and gradient stats.
         let mut reads = ReadBatch::new();
-        let loss_slots = self.pipeline.add_loss_reads(&mut reads, &plan, cut);
-        let stats_slot = reads.add(self.grad_norm.stats(), self.grad_norm.stats().len());
-        let back = reads.read_after(enc)?;
-        let losses = self.pipeline.losses(&back, &loss_slots);
-        let grad = GradStats::from_buffer(&back.get(&stats_slot));
-        if let Err(e) = losses.check_finite(step) {
+        let losses = self.pipeline.add_loss_reads(&mut reads, &plan, cut);
+        let stats = reads.add(self.grad_norm.stats(), self.grad_norm.stats().len());
+        let read = reads.submit_after(enc);
+        self.step += 1;
+        Ok(InFlight {
+            step,
+            plan,
+            lr,
+            n_rays: self.pipeline.rays_per_batch(),
+            sample_capacity: self.pipeline.sample_capacity(),
+            occupied_fraction: self.model.occupied_fraction(),
+            losses,
+            stats,
+            read,
+        })
+    }
+
+    /// Waits for a submitted step's readback and turns it into its [`StepStats`]: the
+    /// NaN guard's verdict, the sample capacity grown for the steps after it.
+    fn complete(&mut self, f: InFlight) -> Result<StepStats, TrainError> {
+        let back = f.read.wait(&self.gpu)?;
+        let losses = self.pipeline.losses(&back, &f.losses);
+        let grad = GradStats::from_buffer(&back.get(&f.stats));
+        if let Err(e) = losses.check_finite(f.step) {
             // Adam skipped the step on the GPU (its guard); its counter goes back too,
-            // so the optimizer is exactly as before the step.
+            // so the optimizer is exactly as the step found it.
             if grad.guard_nonfinite > 0 {
                 self.adam.set_step_count(self.adam.step_count() - 1);
             }
-            self.step += 1;
             return Err(e);
         }
         let counts = losses.samples;
@@ -503,18 +581,16 @@ impl Trainer {
             p.steps += 1;
             p.field_samples += counts[0] as u64;
         }
-        self.step += 1;
-        let sample_capacity = self.pipeline.sample_capacity();
         if self.config().train.grow_capacity
-            && let Some(grown) = self.pipeline.grow_capacity(&gpu, counts[1])?
+            && let Some(grown) = self.pipeline.grow_capacity(&self.gpu, counts[1])?
         {
-            log::info!("step {}: rays wanted {} samples, above the capacity {sample_capacity}; capacity now {grown}", self.step, counts[1]);
+            let (step, wanted, capacity) = (f.step + 1, counts[1], f.sample_capacity);
+            log::info!("step {step}: rays wanted {wanted} samples, above the capacity {capacity}; capacity now {grown}");
         }
         if !grad.all_finite() {
-            return Err(TrainError::NonFinite { step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
+            return Err(TrainError::NonFinite { step: f.step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }
-        let n_all = self.pipeline.rays_per_batch();
-        Ok(StepStats::new(&plan, &losses, lr, grad.raw_norm, counts, n_all, self.model.occupied_fraction(), sample_capacity))
+        Ok(StepStats::new(&f.plan, &losses, f.lr, grad.raw_norm, counts, f.n_rays, f.occupied_fraction, f.sample_capacity))
     }
 
     /// What step `self.step` asks of the pipeline for `batch`: the loss weights in

@@ -11,7 +11,9 @@
 //!
 //! The loop runs until `train.iters` steps are done, or stops early after the step at
 //! which `train.max_seconds` of training have passed, or after a step at which the
-//! [`RunObserver`] asks it to (Ctrl-C in the CLI). [`write_evaluation`] then renders the
+//! [`RunObserver`] asks it to (Ctrl-C in the CLI); steps are read back one step late
+//! ([`Trainer::step_pipelined`]), so such a stop also finishes the step already
+//! running. [`write_evaluation`] then renders the
 //! test views into [`TEST_DIR`] (`test/`) with their `metrics.json`.
 //!
 //! Invariants: `config.json`, checkpoints and `metrics.json` are replaced atomically
@@ -94,23 +96,41 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
     let start = Instant::now();
     let first_step = trainer.step_count();
     let mut end = RunEnd::Finished;
+    let every = config.train.checkpoint_every;
+    // Each step is read back while the next one runs (Trainer::step_pipelined); the
+    // step before a checkpoint and the last one are read back at once (drained), so a
+    // checkpoint holds exactly the steps the log has rows for.
     while trainer.step_count() < iters {
-        let stats = trainer.step()?;
-        let elapsed = start.elapsed().as_secs_f64();
-        writeln!(log, "{}", stats.csv_row(elapsed)).map_err(|e| TrainError::io(&log_path, e))?;
-        observer.step(trainer, &stats, elapsed);
-        let every = config.train.checkpoint_every;
-        if every > 0 && trainer.step_count().is_multiple_of(every) && trainer.step_count() < iters {
+        let done = trainer.step_count() + 1;
+        let checkpoint_due = every > 0 && done.is_multiple_of(every) && done < iters;
+        let mut steps = trainer.step_pipelined(done >= iters || checkpoint_due)?;
+        let mut stopping = None;
+        let mut i = 0;
+        while let Some(stats) = steps.get(i) {
+            let elapsed = start.elapsed().as_secs_f64();
+            writeln!(log, "{}", stats.csv_row(elapsed)).map_err(|e| TrainError::io(&log_path, e))?;
+            observer.step(trainer, stats, elapsed);
+            if stopping.is_none() {
+                if observer.stop_requested() {
+                    stopping = Some(RunEnd::Stopped);
+                } else if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
+                    observer.time_limit_reached(stats.step + 1, elapsed);
+                    stopping = Some(RunEnd::TimeLimit);
+                }
+                if stopping.is_some() {
+                    // The step in flight, if any, ends the run too: its row, then the
+                    // checkpoint.
+                    steps.extend(trainer.finish_pending()?);
+                }
+            }
+            i += 1;
+        }
+        if let Some(reason) = stopping {
+            end = reason;
+            break;
+        }
+        if checkpoint_due {
             trainer.checkpoint()?.save(&checkpoint)?;
-        }
-        if observer.stop_requested() {
-            end = RunEnd::Stopped;
-            break;
-        }
-        if config.train.max_seconds.is_some_and(|limit| elapsed >= limit) {
-            observer.time_limit_reached(trainer.step_count(), elapsed);
-            end = RunEnd::TimeLimit;
-            break;
         }
     }
     trainer.checkpoint()?.save(&checkpoint)?;

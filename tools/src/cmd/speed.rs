@@ -140,30 +140,32 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     let bar = ProgressBar::new(args.warmup + timed_passes * args.steps);
     bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
     bar.set_prefix(case.name.clone());
-    let step = |trainer: &mut Trainer, phase: &str| -> anyhow::Result<()> {
-        trainer.step().with_context(|| format!("{}: {phase} step", case.name))?;
+    // Steps as a run takes them: each read back while the next one runs, the phase's
+    // last one drained (`drain`), so a phase's time covers its steps' GPU work.
+    let step = |trainer: &mut Trainer, phase: &str, drain: bool| -> anyhow::Result<()> {
+        trainer.step_pipelined(drain).with_context(|| format!("{}: {phase} step", case.name))?;
         bar.set_message(phase.to_string());
         bar.inc(1);
         Ok(())
     };
-    for _ in 0..args.warmup {
-        step(&mut trainer, "warm-up")?;
+    for i in 0..args.warmup {
+        step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
     let start = Instant::now();
-    for _ in 0..args.steps {
-        step(&mut trainer, "plain")?;
+    for i in 0..args.steps {
+        step(&mut trainer, "plain", i + 1 == args.steps)?;
     }
     let plain_s = start.elapsed().as_secs_f64();
     trainer.set_profiling(true);
     for _ in 0..args.steps {
-        step(&mut trainer, "profiled")?;
+        step(&mut trainer, "profiled", true)?;
     }
     let times: StageTimes = trainer.stage_times().cloned().expect("profiling is on");
     trainer.set_profiling(false);
     let kernels = if args.kernels {
         gpu.set_kernel_timing(true);
         for _ in 0..args.steps {
-            step(&mut trainer, "kernels timed")?;
+            step(&mut trainer, "kernels timed", true)?;
         }
         let times = gpu.kernel_times().expect("kernel timing is on");
         gpu.set_kernel_timing(false);
