@@ -5,9 +5,16 @@
 //! together ([`ReadBatch`]); on a GPU each separate readback is a round trip that
 //! drains the queue, so the step waits once instead of once per value.
 //!
-//! Invariants: a batch reads what every earlier submission wrote (its copies are queued
-//! after them), exactly as [`GpuBuffer::read`], which is a batch of one; the values
-//! come back bit for bit, in the order of [`ReadBatch::add`].
+//! A batch can also go out at the end of a caller's encoder ([`ReadBatch::read_after`],
+//! a training step's one submission) or be waited for later
+//! ([`ReadBatch::submit_after`] -> [`PendingRead::wait`]): a run submits step N, then
+//! waits for step N-1's values while the GPU runs step N.
+//!
+//! Invariants: a batch reads what every earlier submission, and what its encoder
+//! recorded before it, wrote (its copies are queued after them), exactly as
+//! [`GpuBuffer::read`], which is a batch of one; the values come back bit for bit, in
+//! the order of [`ReadBatch::add`]. [`PendingRead::wait`] waits for the batch's own
+//! submission only (and so for the earlier ones), not for later ones.
 
 use std::marker::PhantomData;
 
@@ -164,5 +171,25 @@ mod tests {
         assert_eq!(p[1][0], 3.0);
         assert!(p[1][1] == 0.0 && p[1][1].is_sign_negative());
         assert!(ReadBatch::new().read(&gpu).unwrap().bytes.is_empty());
+    }
+
+    /// A batch submitted at the end of an encoder and waited for later returns the
+    /// values as of its place in the queue: what its encoder wrote before it, not what
+    /// a later submission (already queued when it is waited for) overwrites.
+    #[test]
+    fn a_pending_read_returns_the_values_at_its_place_in_the_queue() {
+        let gpu = test_gpu(false);
+        let values = GpuBuffer::from_slice(&gpu, "values", &[1u32, 2, 3, 4]).unwrap();
+        let copy = GpuBuffer::<u32>::zeros(&gpu, "copy", 4).unwrap();
+        let mut enc = gpu.encoder();
+        enc.copy(&values.buffer, &copy.buffer, 16);
+        let mut batch = ReadBatch::new();
+        let slot = batch.add(&copy, 4);
+        let pending = batch.submit_after(enc);
+        let mut later = gpu.encoder();
+        later.clear(&copy.buffer);
+        later.submit();
+        assert_eq!(pending.wait(&gpu).unwrap().get(&slot), vec![1, 2, 3, 4]);
+        assert_eq!(copy.read(&gpu).unwrap(), vec![0; 4], "the later clear ran too");
     }
 }

@@ -322,11 +322,14 @@ struct Progress {
 }
 
 impl RunObserver for Progress {
-    fn step(&mut self, trainer: &Trainer, stats: &StepStats, elapsed_s: f64) {
+    fn step(&mut self, _trainer: &Trainer, stats: &StepStats, elapsed_s: f64) {
         let ema = self.psnr_ema.map_or(stats.psnr, |p| 0.9 * p + 0.1 * stats.psnr);
         self.psnr_ema = Some(ema);
-        let steps_per_s = (trainer.step_count() - self.first_step) as f64 / elapsed_s.max(1e-9);
-        self.bar.set_position(trainer.step_count());
+        // Steps read back so far (a run reads each one back while the next one runs,
+        // so `trainer.step_count()` may be one ahead).
+        let done = stats.step + 1;
+        let steps_per_s = (done - self.first_step) as f64 / elapsed_s.max(1e-9);
+        self.bar.set_position(done);
         let mut reg = if stats.lambda_depth > 0.0 || stats.lambda_normal > 0.0 {
             format!(" Lz {:.2e} Ln {:.2e}", stats.loss_depth, stats.loss_normal)
         } else {
