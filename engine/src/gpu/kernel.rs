@@ -672,6 +672,126 @@ pub(crate) mod tests {
         assert!(last.iter().all(|&v| v == (steps - 1 + 39) as f32));
     }
 
+    /// What a vec4 load at a per-invocation address inside a loop costs on this
+    /// adapter from a storage buffer, a uniform buffer and a texture
+    /// (`kernels/gpu/load_paths.wgsl`: the same 64 KB table, the access pattern of
+    /// `grid_outer.wgsl`). Run with `cargo test --release -p edgenerf-engine --lib
+    /// load_paths -- --ignored --nocapture`. Prints ns per loaded vec4 and checks the
+    /// three paths sum the same values.
+    ///
+    /// Measured 2026-11-27 on the 2-core CPU with lavapipe: see the README, "Per
+    /// kernel: where a step goes". A timing-only `outer` without its scratch loads
+    /// ran 10-11 ms a step against 32-37 ms (`edgenerf speed --kernels`): the storage
+    /// loads are most of its cost there.
+    #[test]
+    #[ignore]
+    fn load_paths_on_this_adapter() {
+        use crate::gpu::test_gpu;
+        use wgpu::util::DeviceExt;
+        let gpu = test_gpu(false);
+        let device = &gpu.device;
+        let (threads, iters) = (65536u32, 64u32);
+        let table: Vec<[f32; 4]> = (0..4096).map(|i| [i as f32 * 1e-3, 0.5, -0.25, (i % 7) as f32]).collect();
+        let bytes: &[u8] = bytemuck::cast_slice(&table);
+        let buffer = |usage| device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: None, contents: bytes, usage });
+        let storage = buffer(wgpu::BufferUsages::STORAGE);
+        let uniform = buffer(wgpu::BufferUsages::UNIFORM);
+        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: bytemuck::cast_slice(&[iters, 0, 0, 0]),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let size = wgpu::Extent3d { width: 64, height: 64, depth_or_array_layers: 1 };
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: None,
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        gpu.queue.write_texture(
+            texture.as_image_copy(),
+            bytes,
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(64 * 16), rows_per_image: Some(64) },
+            size,
+        );
+        let view = texture.create_view(&Default::default());
+        let sums: Vec<crate::gpu::GpuBuffer<[f32; 4]>> =
+            (0..3).map(|_| crate::gpu::GpuBuffer::zeros(&gpu, "sums", threads as usize).unwrap()).collect();
+        let entry = |binding, ty| wgpu::BindGroupLayoutEntry { binding, visibility: wgpu::ShaderStages::COMPUTE, ty, count: None };
+        let buffer_entry = |binding, ty| entry(binding, wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None });
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: None,
+            entries: &[
+                buffer_entry(0, wgpu::BufferBindingType::Storage { read_only: true }),
+                buffer_entry(1, wgpu::BufferBindingType::Storage { read_only: true }),
+                buffer_entry(2, wgpu::BufferBindingType::Uniform),
+                entry(3, wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                }),
+                buffer_entry(4, wgpu::BufferBindingType::Storage { read_only: false }),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: None,
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("gpu/load_paths.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(kernel_source("gpu/load_paths.wgsl").unwrap())),
+        });
+        let mut results = Vec::new();
+        for (path, out) in ["from_storage", "from_uniform", "from_texture"].into_iter().zip(&sums) {
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(path),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(path),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout: &layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: storage.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&view) },
+                    wgpu::BindGroupEntry { binding: 4, resource: out.buffer.as_entire_binding() },
+                ],
+            });
+            let run = || {
+                let mut enc = device.create_command_encoder(&Default::default());
+                {
+                    let mut pass = enc.begin_compute_pass(&Default::default());
+                    pass.set_pipeline(&pipeline);
+                    pass.set_bind_group(0, &bind_group, &[]);
+                    pass.dispatch_workgroups(threads / 64, 1, 1);
+                }
+                let started = std::time::Instant::now();
+                gpu.submit(enc.finish());
+                gpu.wait().unwrap();
+                started.elapsed().as_secs_f64()
+            };
+            run();
+            let best = (0..5).map(|_| run()).fold(f64::INFINITY, f64::min);
+            let loads = (threads * iters * 4) as f64;
+            println!("{path}: {:.1} ms, {:.2} ns per vec4 load", best * 1e3, best * 1e9 / loads);
+            results.push(out.read(&gpu).unwrap());
+        }
+        for other in &results[1..] {
+            let worst = results[0].iter().zip(other).flat_map(|(a, b)| (0..4).map(move |c| (a[c] - b[c]).abs())).fold(0.0, f32::max);
+            assert!(worst <= 1e-3, "the load paths disagree by {worst}");
+        }
+    }
+
     #[test]
     fn every_kernel_validates_on_both_atomic_paths() {
         assert!(!KERNEL_SOURCES.is_empty(), "no kernels embedded");
