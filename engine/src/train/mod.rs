@@ -485,7 +485,9 @@ impl Trainer {
     /// profiling on, this step is read back too (then none is left in flight). The
     /// steps are exactly those of [`Trainer::step`]; only when their figures come back
     /// differs. A non-finite loss or gradient of the earlier step is reported here,
-    /// when the later one already ran (its own guard still applies to it).
+    /// when the later one already ran (its own guard still applies to it). The step
+    /// in flight counts in [`Trainer::step_count`] and its update is in what
+    /// [`Trainer::checkpoint`] reads; [`Trainer::finish_pending`] returns its stats.
     pub fn step_pipelined(&mut self, drain: bool) -> Result<Vec<StepStats>, TrainError> {
         if let Some(p) = &mut self.profile {
             p.begin();
