@@ -181,9 +181,9 @@
 //!   thread spill; its atomics are not its cost (without them, timing only, 38 / 32 /
 //!   45 ms against 55 / 37 / 36), its scratch loads are: a timing-only `outer` that
 //!   makes its rows from the sample index ran 10-11 ms against 32-37 ms. They are
-//!   per-invocation loads inside a loop, lane by lane on llvmpipe; a texture would be
-//!   no faster there and a uniform buffer (2x faster) is capped at 64 KB (the ignored
-//!   benchmark `load_paths_on_this_adapter` in `gpu/kernel.rs`). The
+//!   per-invocation loads inside a loop, lane by lane on llvmpipe; a texture fetch is
+//!   1.2-1.5x faster there and a uniform buffer 2.5-3x, but capped at 64 KB (the
+//!   ignored benchmark `load_paths_on_this_adapter` in `gpu/kernel.rs`). The
 //!   same tool split the scatter by level (timing-only variants, 4 levels active):
 //!   the three dense coarse levels cost 17-19 ms, the one hashed level 13 ms, so the
 //!   random footprint sets it, not contention between threads on hot coarse entries.
