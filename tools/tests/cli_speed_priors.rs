@@ -31,6 +31,8 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     for key in ["steps_per_s", "samples_per_step", "field_forward_samples_per_s", "field_backward_samples_per_s"] {
         assert!(case[key].as_f64().unwrap() > 0.0, "{key}: {case}");
     }
+    // Plain steps 1-2 update no occupancy grid: one submission each.
+    assert_eq!(case["submissions_per_step"].as_f64().unwrap(), 1.0, "{case}");
     let field_ms = |name: &str| stages.iter().find(|s| s["stage"] == name).unwrap()["ms_per_step"].as_f64().unwrap();
     assert!(field_ms("field forward") > 0.0 && field_ms("field backward") > 0.0);
 

@@ -68,6 +68,9 @@ struct CaseResult {
     steps: u64,
     steps_per_s: f64,
     ms_per_step: f64,
+    /// Command buffers submitted per plain step: 1, plus an occupancy grid update's
+    /// own every `sampler.update_interval` steps.
+    submissions_per_step: f64,
     profiled_ms_per_step: f64,
     samples_per_step: f64,
     field_forward_samples_per_s: f64,
@@ -151,11 +154,12 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     for i in 0..args.warmup {
         step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
-    let start = Instant::now();
+    let (start, submitted) = (Instant::now(), gpu.submissions());
     for i in 0..args.steps {
         step(&mut trainer, "plain", i + 1 == args.steps)?;
     }
     let plain_s = start.elapsed().as_secs_f64();
+    let submissions = gpu.submissions() - submitted;
     trainer.set_profiling(true);
     for _ in 0..args.steps {
         step(&mut trainer, "profiled", true)?;
@@ -196,6 +200,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         steps: args.steps,
         steps_per_s: args.steps as f64 / plain_s.max(1e-12),
         ms_per_step: 1e3 * plain_s / args.steps.max(1) as f64,
+        submissions_per_step: submissions as f64 / args.steps.max(1) as f64,
         profiled_ms_per_step: 1e3 * total_s / n,
         samples_per_step: times.field_samples as f64 / n,
         field_forward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldForward)),
@@ -213,7 +218,10 @@ fn print_case(r: &CaseResult) {
         "{} ({}, {} training views, {} rays/step, {:.0} field samples/step)",
         r.name, r.scene, r.train_views, r.rays_per_step, r.samples_per_step
     );
-    println!("  plain: {:.2} steps/s ({:.1} ms/step); profiled stage by stage: {:.1} ms/step", r.steps_per_s, r.ms_per_step, r.profiled_ms_per_step);
+    println!(
+        "  plain: {:.2} steps/s ({:.1} ms/step, {:.2} submissions/step); profiled stage by stage: {:.1} ms/step",
+        r.steps_per_s, r.ms_per_step, r.submissions_per_step, r.profiled_ms_per_step
+    );
     println!("  {:<18} {:>9} {:>6}", "stage", "ms/step", "share");
     for s in &r.stages {
         println!("  {:<18} {:>9.2} {:>5.1}%", s.stage, s.ms_per_step, 100.0 * s.share);
