@@ -210,6 +210,49 @@ fn pipelined_steps_submit_once_and_match_plain_steps() {
     }
 }
 
+/// A run that stops early (an observer's stop request, a time limit) with a step in
+/// flight finishes that step too: the log has a row for every step the checkpoint
+/// holds, in order, and the summary names the step it ended at. A finished run's last
+/// checkpoint holds `train.iters` steps and the log as many rows.
+#[test]
+fn a_run_that_stops_early_logs_every_step_its_checkpoint_holds() {
+    struct StopAfter(u64);
+    impl edgenerf::train::RunObserver for StopAfter {
+        fn step(&mut self, _: &Trainer, stats: &edgenerf::train::StepStats, _: f64) {
+            self.0 = self.0.saturating_sub(1);
+            assert!(stats.loss.is_finite());
+        }
+        fn stop_requested(&mut self) -> bool {
+            self.0 == 0
+        }
+    }
+    let cases: [(&str, Option<f64>, u64, edgenerf::train::RunEnd); 3] = [
+        ("stop request", None, 2, edgenerf::train::RunEnd::Stopped),
+        ("time limit", Some(1e-6), u64::MAX, edgenerf::train::RunEnd::TimeLimit),
+        ("finished", None, u64::MAX, edgenerf::train::RunEnd::Finished),
+    ];
+    for (what, max_seconds, stop_after, end) in cases {
+        let mut config = tiny_config("thin", 5);
+        config.train.max_seconds = max_seconds;
+        config.train.checkpoint_every = 2;
+        let scene = load(&config);
+        let mut trainer = Trainer::new(test_gpu(false), scene, config).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let summary = edgenerf::train::train_run(&mut trainer, dir.path(), &mut StopAfter(stop_after)).unwrap();
+        assert_eq!(summary.end, end, "{what}");
+        let log = std::fs::read_to_string(dir.path().join("log.csv")).unwrap();
+        let steps: Vec<u64> = log.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+        let saved = Checkpoint::load(&summary.checkpoint).unwrap();
+        assert_eq!(saved.step, summary.last_step, "{what}");
+        assert_eq!(steps, (0..saved.step).collect::<Vec<_>>(), "{what}: log rows against the checkpoint's {} steps", saved.step);
+        if end == edgenerf::train::RunEnd::Finished {
+            assert_eq!(saved.step, 5);
+        } else {
+            assert!(saved.step < 5, "{what}: stopped early at {}", saved.step);
+        }
+    }
+}
+
 #[test]
 fn evaluation_renders_every_test_view() {
     let config = tiny_config("thin", 1);
