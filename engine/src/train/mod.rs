@@ -301,7 +301,7 @@ struct InFlight {
     step: u64,
     plan: StepPlan,
     lr: f32,
-    n_rays: u32,
+    /// The capacity the step ran with (a later step's readback may grow it).
     sample_capacity: u32,
     occupied_fraction: f32,
     losses: LossReads,
@@ -379,12 +379,19 @@ impl Trainer {
 
     /// One optimisation step (see the module doc).
     pub fn step(&mut self) -> Result<StepStats, TrainError> {
+        let batch = self.draw_timed_batch()?;
+        self.step_on(batch)
+    }
+
+    /// [`Trainer::draw_batch`] as a step's first stage: with profiling on, the step's
+    /// clock starts here and the drawing is charged to [`Stage::Batch`].
+    fn draw_timed_batch(&mut self) -> Result<rays::PixelBatch, TrainError> {
         if let Some(p) = &mut self.profile {
             p.begin();
         }
         let batch = self.draw_batch()?;
         self.end_stage(Stage::Batch)?;
-        self.step_on(batch)
+        Ok(batch)
     }
 
     /// Switches per-stage timing on (from zero) or off; see [`profile`].
@@ -489,11 +496,7 @@ impl Trainer {
     /// in flight counts in [`Trainer::step_count`] and its update is in what
     /// [`Trainer::checkpoint`] reads; [`Trainer::finish_pending`] returns its stats.
     pub fn step_pipelined(&mut self, drain: bool) -> Result<Vec<StepStats>, TrainError> {
-        if let Some(p) = &mut self.profile {
-            p.begin();
-        }
-        let batch = self.draw_batch()?;
-        self.end_stage(Stage::Batch)?;
+        let batch = self.draw_timed_batch()?;
         let submitted = self.submit_step(batch)?;
         let mut done = Vec::with_capacity(2);
         let previous = self.in_flight.replace(submitted);
@@ -554,7 +557,6 @@ impl Trainer {
             step,
             plan,
             lr,
-            n_rays: self.pipeline.rays_per_batch(),
             sample_capacity: self.pipeline.sample_capacity(),
             occupied_fraction: self.model.occupied_fraction(),
             losses,
@@ -592,7 +594,7 @@ impl Trainer {
         if !grad.all_finite() {
             return Err(TrainError::NonFinite { step: f.step, what: format!("the gradient ({} non-finite entries)", grad.nonfinite) });
         }
-        Ok(StepStats::new(&f.plan, &losses, f.lr, grad.raw_norm, counts, f.n_rays, f.occupied_fraction, f.sample_capacity))
+        Ok(StepStats::new(&f.plan, &losses, f.lr, grad.raw_norm, counts, self.pipeline.rays_per_batch(), f.occupied_fraction, f.sample_capacity))
     }
 
     /// What step `self.step` asks of the pipeline for `batch`: the loss weights in

@@ -461,19 +461,22 @@ impl Pipeline {
     /// the sampler counted the rays' wanted samples (then the drop of cut rays ran).
     pub fn add_loss_reads<'a>(&'a self, reads: &mut ReadBatch<'a>, plan: &StepPlan, cut: bool) -> LossReads {
         let t = self.loss_terms(plan);
+        let counts = reads.add(&self.bufs.batch.count, 2);
+        let dropped = cut.then(|| reads.add(self.drop_truncated.dropped_count(), 1));
+        let sq_error = reads.add(t.sq_error.0, t.sq_error.1);
+        let reg = t.reg.map(|(buffer, len)| reads.add(buffer, len));
+        let aux = t.aux.map(|aux| reads.add(aux, aux.len()));
         let mut add = |term: Option<(&'a GpuBuffer<f32>, usize)>| term.map(|(buffer, len)| reads.add(buffer, len));
-        let (sq_error, depth_normal) = (add(Some(t.sq_error)).expect("always read"), add(t.depth_normal));
-        let (tv, planarity, reprojection) = (add(t.tv), add(t.planarity), add(t.reprojection));
         LossReads {
-            reg: t.reg.map(|(buffer, len)| reads.add(buffer, len)),
-            counts: reads.add(&self.bufs.batch.count, 2),
-            dropped: cut.then(|| reads.add(self.drop_truncated.dropped_count(), 1)),
+            counts,
+            dropped,
             sq_error,
-            depth_normal,
-            tv,
-            planarity,
-            reprojection,
-            aux: t.aux.map(|aux| reads.add(aux, aux.len())),
+            reg,
+            depth_normal: add(t.depth_normal),
+            tv: add(t.tv),
+            planarity: add(t.planarity),
+            reprojection: add(t.reprojection),
+            aux,
         }
     }
 
