@@ -92,6 +92,13 @@ pub struct AdapterSummary {
     pub max_storage_binding_bytes: u64,
 }
 
+impl AdapterSummary {
+    /// Whether the adapter is a CPU implementation (lavapipe, SwiftShader).
+    pub fn is_cpu(&self) -> bool {
+        self.device_type == format!("{:?}", wgpu::DeviceType::Cpu)
+    }
+}
+
 impl std::fmt::Display for AdapterSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(

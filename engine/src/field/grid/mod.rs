@@ -189,6 +189,12 @@
 //!   random footprint sets it, not contention between threads on hot coarse entries.
 //!   And a forward that computes the corner indices but loads nothing is only about
 //!   8 ms (a sixth) faster: the table gathers are not the forward's cost either.
+//!   A fifth (2026-11-27, later), for Instant-NGP's default field, whose 48 MB table
+//!   does not fit the caches: a level's 8 table entries computed first and their loads
+//!   issued back to back before the corner arithmetic (so the misses overlap), in the
+//!   forward and in the scatter, and the gradient lines read before the atomic adds.
+//!   Two interleaved rounds of `edgenerf speed --kernels` measured no difference
+//!   beyond the machine's noise (README, "Instant-NGP's default field"); not kept.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
