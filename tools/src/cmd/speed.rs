@@ -143,11 +143,16 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     let bar = ProgressBar::new(args.warmup + timed_passes * args.steps);
     bar.set_style(ProgressStyle::with_template("{prefix:>12} {bar:30} {pos}/{len} {msg}").unwrap());
     bar.set_prefix(case.name.clone());
+    bar.set_message(super::train::first_step_message(gpu));
+    bar.enable_steady_tick(std::time::Duration::from_secs(1));
     // Steps as a run takes them: each read back while the next one runs, the phase's
     // last one drained (`drain`), so a phase's time covers its steps' GPU work.
     let step = |trainer: &mut Trainer, phase: &str, drain: bool| -> anyhow::Result<()> {
-        trainer.step_pipelined(drain).with_context(|| format!("{}: {phase} step", case.name))?;
-        bar.set_message(phase.to_string());
+        let read_back = trainer.step_pipelined(drain).with_context(|| format!("{}: {phase} step", case.name))?;
+        // The first step's message stays until that step is read back (its kernels built).
+        if !read_back.is_empty() {
+            bar.set_message(phase.to_string());
+        }
         bar.inc(1);
         Ok(())
     };

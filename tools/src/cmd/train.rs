@@ -310,6 +310,20 @@ mod interrupt {
     }
 }
 
+/// The progress bar's message while a run's first step runs. The first step builds
+/// every kernel the run uses: lavapipe compiles each with LLVM at its first dispatch,
+/// which takes minutes for a field it has not seen (about 15 at the default width-64,
+/// 16-level grid on a 2-core CPU; README, "The first run of a field configuration
+/// compiles for minutes on a CPU"). Mesa keeps the result in its shader cache, so only
+/// the first run of a field configuration on a machine waits.
+pub(crate) fn first_step_message(gpu: &Gpu) -> &'static str {
+    if gpu.adapter().is_cpu() {
+        "first step: compiling kernels (on a CPU, minutes for a new field config; cached after)"
+    } else {
+        "first step: compiling kernels"
+    }
+}
+
 /// The progress bar and its message, fed by the library's run loop; Ctrl-C asks it to stop.
 struct Progress {
     bar: ProgressBar,
@@ -413,16 +427,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}").unwrap(),
     );
     bar.set_position(trainer.step_count());
-    // The first step builds every kernel the run uses. lavapipe compiles each with LLVM
-    // at its first dispatch, which takes minutes for a field it has not seen (about 15
-    // at the default width-64, 16-level grid on a 2-core CPU; README, "edgenerf
-    // speed"); Mesa keeps the result in its shader cache, so only the first run of a
-    // field configuration on a machine waits. The first step's figures replace this.
-    bar.set_message(if trainer.gpu.adapter().is_cpu() {
-        "first step: compiling kernels (on a CPU, minutes for a new field config; cached after)"
-    } else {
-        "first step: compiling kernels"
-    });
+    bar.set_message(first_step_message(&trainer.gpu));
     bar.enable_steady_tick(std::time::Duration::from_secs(1));
     let mut progress = Progress {
         bar: bar.clone(),
