@@ -201,6 +201,16 @@ impl Gpu {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| GpuError::RequestDevice { adapter: info.name.clone(), message: e.to_string() })?;
+        // A lost device (a driver fault, a GPU reset) turns every later buffer and
+        // readback into a validation error that names a buffer, not the cause. The
+        // callback is the only place the cause shows up, and it runs inside a poll, with
+        // no caller to return it to: say it on stderr, once, with where to look next.
+        let adapter_name = info.name.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            if reason != wgpu::DeviceLostReason::Destroyed {
+                eprintln!("{}", device_lost_message(&adapter_name, &message));
+            }
+        });
         let summary = AdapterSummary {
             name: info.name.clone(),
             device_type: format!("{:?}", info.device_type),
@@ -313,6 +323,15 @@ impl Gpu {
             .map(|_| ())
             .map_err(|e| GpuError::Device(e.to_string()))
     }
+}
+
+/// What a lost device prints: the adapter, the driver's words, and where to look.
+fn device_lost_message(adapter: &str, driver_message: &str) -> String {
+    format!(
+        "error: the GPU device on {adapter} was lost ({driver_message}); every GPU result after this is invalid. \
+         The driver's log says why (NVIDIA: `dmesg | grep -i xid`); checkpoints already written are intact, \
+         so a run can continue with `edgenerf train --resume`."
+    )
 }
 
 /// Opens the default GPU for tests, once per test process; panics with the driver
