@@ -188,8 +188,18 @@ fn pipelined_steps_submit_once_and_match_plain_steps() {
         assert_eq!(expected[0].loss.to_bits(), got[0].loss.to_bits(), "{settings:?}: step 0");
         for (e, g) in expected.iter().zip(&got) {
             assert_eq!(e.step, g.step);
-            let close = |a: f32, b: f32| (a - b).abs() <= 1e-3 * a.abs().max(1e-6);
-            assert!(close(e.loss, g.loss) && close(e.grad_norm, g.grad_norm), "{settings:?}: step {} {e:?} vs {g:?}", e.step);
+            let close = |a: f32, b: f32, rel: f32| (a - b).abs() <= rel * a.abs().max(1e-6);
+            // The gradient norm sums squares of gradients whose float-atomic adds land in
+            // another order each run, and with the second-order normal terms on that
+            // drifts faster than the loss: 1.24e-3 apart at step 5 in one CI run of this
+            // test. Consecutive steps differ by 5-10 % (pixel batches: 0.0098, 0.0092,
+            // 0.0084, 0.0079, 0.0087, 0.0082) and by 20 % or more with every term, so a
+            // step taken with another step's parameters or batch still fails.
+            assert!(
+                close(e.loss, g.loss, 1e-3) && close(e.grad_norm, g.grad_norm, 1e-2),
+                "{settings:?}: step {} {e:?} vs {g:?}",
+                e.step
+            );
         }
 
         for &v in &trainer.scene.split.train.clone() {
