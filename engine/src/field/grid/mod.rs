@@ -195,6 +195,12 @@
 //!   forward and in the scatter, and the gradient lines read before the atomic adds.
 //!   Two interleaved rounds of `edgenerf speed --kernels` measured no difference
 //!   beyond the machine's noise (README, "Instant-NGP's default field"); not kept.
+//!   A sixth (2026-11-27, fifth stop), for the same field's TLB misses: lavapipe's
+//!   buffers on transparent huge pages (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`, which
+//!   makes glibc ask for them; up to 280 MB of huge pages seen during the run), three
+//!   interleaved rounds of `field_grid_throughput`: forward with normals 343-377 ms
+//!   of CPU without, 350-363 with; backward with normals 900-1040 against 890-937.
+//!   Within the noise: page walks are not what the 48 MB table's misses cost.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
