@@ -67,6 +67,13 @@ pub trait Field {
     /// Post-activation densities of `count` points (`xyz` of each `[f32; 4]`, `w`
     /// ignored) into `out[..count]`: occupancy-grid queries, no colour, no normals.
     fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
+    -> Result<(), GpuError> {
+        gpu.submit_recorded(|enc| self.record_density(enc, points, count, out))
+    }
+
+    /// [`Field::density`] recorded into `enc` (the caller submits; an occupancy update
+    /// records its query, these densities and its own kernels into one encoder).
+    fn record_density(&self, enc: &mut Encoder, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
     -> Result<(), GpuError>;
 
     /// Density, colour and (when `normals`) unit normals of every sample of `batch`,

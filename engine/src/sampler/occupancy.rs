@@ -31,7 +31,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::gpu::{Binding, Gpu, GpuBuffer, KernelSpec};
+use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, KernelSpec, ReadBatch};
 
 use super::bricks::{BrickBvh, BrickLayout, GpuBvhNode};
 use super::{SamplerConfig, SamplerError, fold_groups};
@@ -185,6 +185,12 @@ impl OccupancyGrid {
     /// Chooses the cells of the update at `step` and one jittered point in each
     /// (see the module doc); deterministic for `(step < warmup, seed, occupancy)`.
     pub fn query_points(&self, gpu: &Gpu, step: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
+        gpu.submit_recorded(|enc| self.record_query_points(enc, step, seed))
+    }
+
+    /// [`OccupancyGrid::query_points`] recorded into `enc` (the caller submits).
+    pub fn record_query_points(&self, enc: &mut Encoder, step: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
+        let gpu = enc.gpu();
         let n_cells = self.geom.n_cells;
         let (all_cells, n_uniform, count) = if step < self.config.warmup_steps {
             (1, 0, n_cells)
@@ -195,7 +201,6 @@ impl OccupancyGrid {
         let positions = GpuBuffer::zeros(gpu, "grid query points", count as usize)?;
         let cells = GpuBuffer::zeros(gpu, "grid query cells", count as usize)?;
         let kernel = gpu.kernel(&QUERY)?;
-        let mut enc = gpu.encoder();
         let params = enc.params(&QueryParams {
             geom: self.geom,
             count,
@@ -206,13 +211,12 @@ impl OccupancyGrid {
             _pad: [0; 3],
         });
         enc.dispatch_threads(&kernel, &[&params, &self.occupied.buffer, &positions.buffer, &cells.buffer], count);
-        enc.submit();
         Ok(OccupancyQuery { positions, cells, count })
     }
 
     /// Folds the densities evaluated at a query's points into the grid, rebuilds the
-    /// bitfield, and the BVH if the bitfield changed. Waits for the GPU (one small
-    /// readback).
+    /// bitfield, and the BVH if the bitfield changed. Waits for the GPU (one
+    /// submission, one small readback).
     pub fn update(
         &mut self,
         gpu: &Gpu,
@@ -220,6 +224,21 @@ impl OccupancyGrid {
         densities: &GpuBuffer<f32>,
         count: u32,
     ) -> Result<OccupancyUpdate, SamplerError> {
+        let mut enc = gpu.encoder();
+        self.record_update(&mut enc, cells, densities, count)?;
+        self.finish_update(enc)
+    }
+
+    /// The kernels of [`OccupancyGrid::update`] recorded into `enc`, after whatever
+    /// wrote `densities` there; [`OccupancyGrid::finish_update`] then submits and reads.
+    pub fn record_update(
+        &self,
+        enc: &mut Encoder,
+        cells: &GpuBuffer<u32>,
+        densities: &GpuBuffer<f32>,
+        count: u32,
+    ) -> Result<(), SamplerError> {
+        let gpu = enc.gpu();
         assert!(
             cells.len() >= count as usize && densities.len() >= count as usize,
             "update of {count} points with {} cells and {} densities",
@@ -229,7 +248,6 @@ impl OccupancyGrid {
         let n_cells = self.geom.n_cells;
         let threshold = self.config.density_threshold(self.layout.aabb);
         let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold };
-        let mut enc = gpu.encoder();
         let p_update = enc.params(&params);
         enc.dispatch_threads(
             &*gpu.kernel(&SCATTER_MAX)?,
@@ -248,8 +266,20 @@ impl OccupancyGrid {
             &[&p_update, &self.density.buffer, &self.sum.buffer, &self.bits.buffer],
             n_cells.div_ceil(32),
         );
-        enc.submit();
-        let mut bits = self.bits.read(gpu)?;
+        Ok(())
+    }
+
+    /// Submits `enc` (holding [`OccupancyGrid::record_update`]'s kernels) with the
+    /// readback of the new bitfield and density sum, waits, and derives the rest on the
+    /// host: the seen-cells mask, the occupied list and the BVH.
+    pub fn finish_update(&mut self, enc: Encoder) -> Result<OccupancyUpdate, SamplerError> {
+        let gpu = enc.gpu();
+        let n_cells = self.geom.n_cells;
+        let mut batch = ReadBatch::new();
+        let bits_slot = batch.add(&self.bits, self.bits.len());
+        let sum_slot = batch.add(&self.sum, 1);
+        let read = batch.read_after(enc)?;
+        let mut bits = read.get(&bits_slot);
         if let Some(seen) = &self.seen {
             let mut masked_any = false;
             for (b, m) in bits.iter_mut().zip(seen) {
@@ -260,7 +290,7 @@ impl OccupancyGrid {
                 self.bits.write(gpu, &bits);
             }
         }
-        let mean_density = self.sum.read(gpu)?[0] / n_cells as f32;
+        let mean_density = read.get(&sum_slot)[0] / n_cells as f32;
         self.updated = true;
         let changed = bits != self.host_bits;
         if changed {

@@ -244,13 +244,16 @@ impl Model {
             return Ok(None);
         }
         let query_step = if force { 0 } else { step as u32 };
-        let query = self.occupancy.query_points(gpu, query_step, seed)?;
+        // The query, the densities and the update in one submission, one wait.
+        let mut enc = gpu.encoder();
+        let query = self.occupancy.record_query_points(&mut enc, query_step, seed)?;
         if self.occupancy_densities.as_ref().is_none_or(|b| b.len() < query.count as usize) {
             self.occupancy_densities = Some(GpuBuffer::zeros(gpu, "grid densities", query.positions.len())?);
         }
         let densities = self.occupancy_densities.as_ref().unwrap();
-        self.field.density(gpu, &query.positions, query.count, densities)?;
-        Ok(Some(self.occupancy.update(gpu, &query.cells, densities, query.count)?))
+        self.field.record_density(&mut enc, &query.positions, query.count, densities)?;
+        self.occupancy.record_update(&mut enc, &query.cells, densities, query.count)?;
+        Ok(Some(self.occupancy.finish_update(enc)?))
     }
 
     /// Samples `bufs.rays[..n]` into `bufs.batch` and runs the field forward.

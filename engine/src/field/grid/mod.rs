@@ -964,11 +964,10 @@ impl Field for GridField {
         "grid"
     }
 
-    fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
+    fn record_density(&self, enc: &mut Encoder, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
     -> Result<(), GpuError> {
         assert!(points.len() >= count as usize && out.len() >= count as usize, "density: buffers shorter than count");
-        let kernel = self.kernel(gpu, &DENSITY, GridKernel::Density)?;
-        let mut enc = gpu.encoder();
+        let kernel = self.kernel(enc.gpu(), &DENSITY, GridKernel::Density)?;
         let params = enc.params(&self.dispatch_params(count, 0, 0, 0));
         enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
         enc.dispatch_threads(
@@ -976,7 +975,6 @@ impl Field for GridField {
             &[&params, &self.table.buffer, &self.mlp_uniform, &points.buffer, &out.buffer],
             count,
         );
-        enc.submit();
         Ok(())
     }
 

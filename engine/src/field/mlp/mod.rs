@@ -517,14 +517,14 @@ impl Field for MlpField {
         "mlp"
     }
 
-    fn density(&self, gpu: &Gpu, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
+    fn record_density(&self, enc: &mut Encoder, points: &GpuBuffer<[f32; 4]>, count: u32, out: &GpuBuffer<f32>)
     -> Result<(), GpuError> {
         assert!(points.len() >= count as usize && out.len() >= count as usize, "density: buffers shorter than count");
         self.cached.set(None);
+        let gpu = enc.gpu();
         let heads = gpu.kernel(&HEADS_DENSITY)?;
         for (start, n) in self.chunks(count) {
-            let mut enc = gpu.encoder();
-            self.chunk_forward(gpu, &mut enc, Input::Points(points), start, n, 1, false)?;
+            self.chunk_forward(gpu, enc, Input::Points(points), start, n, 1, false)?;
             let u = enc.params(&self.uniform(n, start, 1, 0));
             let wk = &self.work;
             enc.dispatch_threads(
@@ -532,7 +532,6 @@ impl Field for MlpField {
                 &[&u, &wk.sig.buffer, &wk.rgb.buffer, &out.buffer],
                 n,
             );
-            enc.submit();
         }
         Ok(())
     }
