@@ -355,6 +355,8 @@ impl Kernel {
         let (src, module, info) = validate_reflected(spec.file, gpu.float_atomics(), generated)?;
         spec.check_bindings(&module, &info)?;
         spec.check_limits(gpu.limits())?;
+        // Pipeline creation holds the driver lock (`gpu` module doc, "Threads").
+        let _driver = super::driver_lock();
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(spec.file),
             source: wgpu::ShaderSource::Wgsl(Cow::Owned(src)),
@@ -749,14 +751,17 @@ pub(crate) mod tests {
         });
         let mut results = Vec::new();
         for (path, out) in ["from_storage", "from_uniform", "from_texture"].into_iter().zip(&sums) {
-            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(path),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(path),
-                compilation_options: Default::default(),
-                cache: None,
-            });
+            let pipeline = {
+                let _driver = crate::gpu::driver_lock();
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(path),
+                    layout: Some(&pipeline_layout),
+                    module: &module,
+                    entry_point: Some(path),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            };
             let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: None,
                 layout: &layout,

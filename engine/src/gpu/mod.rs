@@ -19,6 +19,23 @@
 //! * [`Gpu::float_atomics`] says which atomic path kernels are built for; the choice
 //!   is made once per context and applied at pipeline build time (see [`kernel`]).
 //! * Nothing here assumes a subgroup size (lavapipe runs 8 lanes, NVIDIA 32).
+//!
+//! # Threads
+//! A [`Gpu`] may be used from several threads (the test harness shares one per
+//! process), but the engine never calls into the driver from two threads at once:
+//! pipeline creation ([`Kernel`]'s build), [`Gpu::submit`] and the waits
+//! ([`Gpu::wait`], [`Gpu::wait_for`]) take one process-wide lock (process-wide because
+//! the tests' two contexts share one driver). Without it NVIDIA's driver lost the
+//! device when the library tests ran at 8-16 threads: on an H100 and an H200
+//! (2026-11-27, driver 580) 6 of 12 runs of the test binary lost it and one more
+//! stalled, most often while the kernels were being compiled (an empty shader cache).
+//! With the lock, 4 of 4 runs at 16 threads passed (pipeline creation alone under it:
+//! 3 of 3; submission and waits alone: 1 of 1, so both are kept). wgpu has open
+//! reports of the same for concurrent pipeline creation (gfx-rs/wgpu#10234) and
+//! multi-threaded submission (#4877). The training loop runs on one thread, so it
+//! never waits on the lock; a test process does, and runs slower on NVIDIA (42-54 s
+//! against 32-38 s at 16 threads). Recording (encoders, bind groups, buffer creation)
+//! and buffer writes stay outside it; wgpu serialises those itself.
 
 mod buffer;
 pub mod selftest;
@@ -299,6 +316,7 @@ impl Gpu {
     /// [`Gpu::submissions`] counts them).
     pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
         self.submissions.fetch_add(1, Ordering::Relaxed);
+        let _driver = driver_lock();
         self.queue.submit([commands])
     }
 
@@ -310,6 +328,7 @@ impl Gpu {
 
     /// Blocks until `submission` (and every earlier one) is done; later ones may still run.
     pub fn wait_for(&self, submission: wgpu::SubmissionIndex) -> Result<(), GpuError> {
+        let _driver = driver_lock();
         self.device
             .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
             .map(|_| ())
@@ -318,11 +337,22 @@ impl Gpu {
 
     /// Blocks until all submitted work is done.
     pub fn wait(&self) -> Result<(), GpuError> {
+        let _driver = driver_lock();
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map(|_| ())
             .map_err(|e| GpuError::Device(e.to_string()))
     }
+}
+
+/// The process-wide driver lock: held while a pipeline is created, a command buffer
+/// is submitted or a thread waits for the device (module doc, "Threads").
+static DRIVER_LOCK: Mutex<()> = Mutex::new(());
+
+/// Takes the driver lock. A thread that panicked while holding it left no state behind
+/// it (the lock guards no data), so a poisoned lock is simply taken.
+pub(crate) fn driver_lock() -> std::sync::MutexGuard<'static, ()> {
+    DRIVER_LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// What a lost device prints: the adapter, the driver's words, and where to look.
