@@ -23,7 +23,7 @@
 //! # Threads
 //! A [`Gpu`] may be used from several threads (the test harness shares one per
 //! process), but the engine never calls into the driver from two threads at once:
-//! pipeline creation ([`Kernel`]'s build), [`Gpu::submit`] and the waits
+//! pipeline creation ([`Kernel`]'s build), submission (`Gpu::submit`) and the waits
 //! ([`Gpu::wait`], [`Gpu::wait_for`]) take one process-wide lock (process-wide because
 //! the tests' two contexts share one driver). Without it NVIDIA's driver lost the
 //! device when the library tests ran at 8-16 threads: on an H100 and an H200

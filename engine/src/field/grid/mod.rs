@@ -201,6 +201,40 @@
 //!   interleaved rounds of `field_grid_throughput`: forward with normals 343-377 ms
 //!   of CPU without, 350-363 with; backward with normals 900-1040 against 890-937.
 //!   Within the noise: page walks are not what the 48 MB table's misses cost.
+//! * **What lavapipe makes of these kernels** (2026-11-27, sixth stop; Mesa 22.3.6,
+//!   LLVM 15; the JIT code dumped with `gdb` from a running `edgenerf speed --preset
+//!   demo` and its hot spots from `perf record -p`): 94 % of the process's samples
+//!   are in JIT code; the forward's and the backward's machine code are 385 KB and
+//!   466 KB of straight-line code, run once per 8-sample subgroup, about 80 k
+//!   instructions for 8 samples where the arithmetic needs about 30 k. The largest
+//!   share is spill traffic (`vmovaps` to and from a 33 KB stack frame, the hottest
+//!   instruction class, about 29 % of the forward's samples; LLVM keeps the whole
+//!   32-wide activation vectors live and uses the AVX-512 registers 16-31 too). Next
+//!   is every storage access with a per-invocation address: llvmpipe emits it lane by
+//!   lane, each lane about 10 instructions (the lane's index from the stack, the
+//!   buffer's size, a bounds-check branch, a masked broadcast load, a jump), the
+//!   jumps after the table gathers taking about 6 % of the forward's samples (their
+//!   cache misses land there). Products and sums are separate `vmulps` / `vaddps`
+//!   (llvmpipe does not fuse them); `LP_NUM_THREADS=1` against 2 scales 1.8-2x (no
+//!   cross-core effect); `LP_NATIVE_VECTOR_WIDTH=512` (16 lanes) ran the same.
+//!   Three more dead ends followed from it, each timed with `edgenerf speed --kernels
+//!   --preset demo` against the same build without it, interleaved, three rounds:
+//!   - seventh, an `outer` whose workgroup shares one sample group and one block of
+//!     uniform-side indices (the uniform side's row at an address the same for every
+//!     invocation, the other side one scalar per invocation): 187-207 ms against
+//!     32-36 ms. A storage load at a subgroup-uniform address inside a loop is still
+//!     run lane by lane in this Mesa (only uniform-buffer loads become one load and a
+//!     broadcast), so the row cost 32 lane-by-lane loads where the 8x8 tiles cost 4
+//!     vec4 ones; without any loads (timing only) the same kernel took 15 ms;
+//!   - eighth, the generated MLP products as explicit `fma` chains (vec4 of 4 rows
+//!     per chain, so every product and sum is one `vfmadd`): forward 39-41 against
+//!     39-44 ms, backward 70-88 against 72-97 ms, within the noise; not kept, since it
+//!     changes the rounding for nothing;
+//!   - ninth, the scatter's two features of a corner added with one 64-bit
+//!     compare-exchange loop (`atomic<u64>`, which lavapipe and naga support) instead
+//!     of two float atomics: backward 86-137 against 72-92 ms. A timing-only variant
+//!     with a single float atomic per corner saved 13 % of the backward (64-70 against
+//!     75-93 ms), but the 64-bit loop costs what the halved count saves.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
