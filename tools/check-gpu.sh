@@ -9,6 +9,11 @@
 #    validation layer with synchronization validation, when the layer is installed:
 #    OUT/validation.txt must stay empty, and OUT/every-term/log.csv is the run's
 #    per-step losses, to compare with the same command on lavapipe (README).
+# 5. with LIB_TESTS=<the engine's library test binary> (built with `cargo test --release
+#    -p edgenerf-engine --lib --no-run`; it must see the repository at the path it was
+#    built at, e.g. `ln -s $PWD /work/main`): that binary LIB_TEST_RUNS times (default
+#    3) at 16 test threads, NVIDIA's shader cache emptied before each run, where a
+#    shared device used to be lost (README, "On an H100"); OUT/lib-tests-N.log.
 # Run from anywhere; paths are the repository's. Without a Vulkan loader on the machine,
 # unpack Debian's libvulkan1 and glvnd's libraries first (README, "On an H100").
 set -uo pipefail
@@ -55,6 +60,17 @@ else
   messages=$(cat "$report" 2>/dev/null | wc -l)
   echo "validation layer: $messages lines in $report"
   [ "$messages" -eq 0 ] || fail "the validation layer logged messages"
+fi
+if [ -n "${LIB_TESTS:-}" ]; then
+  step "the library tests at 16 threads, ${LIB_TEST_RUNS:-3} runs, each with an empty shader cache"
+  for i in $(seq 1 "${LIB_TEST_RUNS:-3}"); do
+    rm -rf "$HOME/.cache/nvidia" "$HOME/.nv"
+    log="$OUT/lib-tests-$i.log"
+    timeout 300 "$LIB_TESTS" --test-threads 16 > "$log" 2>&1
+    rc=$?
+    echo "run $i: exit $rc, $(grep -c -i 'device.*lost' "$log") lost-device lines, $(grep 'test result' "$log")"
+    [ $rc -eq 0 ] || fail "library tests, run $i ($log)"
+  done
 fi
 [ $status -eq 0 ] && echo "all checks passed" || echo "some checks failed (above)"
 exit $status
