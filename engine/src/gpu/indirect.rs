@@ -14,7 +14,7 @@
 //! that read them.
 
 use super::kernel::{Binding, Encoder, Kernel, KernelSpec};
-use super::{Gpu, GpuError};
+use super::{BindResource, Gpu, GpuError};
 
 const INDIRECT: KernelSpec = KernelSpec {
     file: "gpu/indirect.wgsl",
@@ -70,7 +70,7 @@ impl IndirectArgs {
 
     /// Dispatches `kernel` with the arguments of chunk `k` (written by [`Self::record`]
     /// earlier in the same encoder).
-    pub fn dispatch(&self, enc: &mut Encoder, kernel: &Kernel, resources: &[&wgpu::Buffer], k: u32) {
+    pub fn dispatch(&self, enc: &mut Encoder, kernel: &Kernel, resources: &[&dyn BindResource], k: u32) {
         assert!(k < self.n_chunks, "indirect arguments: chunk {k} of {}", self.n_chunks);
         enc.dispatch_indirect(kernel, resources, &self.buffer, 12 * k as u64);
     }

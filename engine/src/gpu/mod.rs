@@ -35,7 +35,9 @@
 //! multi-threaded submission (#4877). The training loop runs on one thread, so it
 //! never waits on the lock; a test process does, and runs slower on NVIDIA (42-54 s
 //! against 32-38 s at 16 threads). Recording (encoders, bind groups, buffer creation)
-//! and buffer writes stay outside it; wgpu serialises those itself.
+//! and buffer writes stay outside it (wgpu serialises those itself), except an
+//! encoder's parameter bytes, written into the shared parameter arena in the same
+//! locked section as its submission (`gpu::kernel`, "The parameter arena").
 
 mod buffer;
 pub mod selftest;
@@ -50,7 +52,7 @@ use std::sync::{Arc, Mutex};
 
 pub use buffer::GpuBuffer;
 pub use indirect::IndirectArgs;
-pub use kernel::{Binding, Encoder, Kernel, KernelSpec};
+pub use kernel::{BindResource, Binding, Encoder, Kernel, KernelSpec, Params};
 pub use kernel_timing::{KernelTimes, KernelTotal};
 pub use readback::{PendingRead, ReadBack, ReadBatch, ReadSlot};
 
@@ -144,6 +146,12 @@ pub struct Gpu {
     kernel_times: Arc<Mutex<Option<KernelTimes>>>,
     /// Command buffers submitted so far, by this context and its clones.
     submissions: Arc<AtomicU64>,
+    /// Nanoseconds the host spent in the driver's submission and waits ([`DriverTime`]).
+    submit_nanos: Arc<AtomicU64>,
+    wait_nanos: Arc<AtomicU64>,
+    /// The parameter arena's buffers (`gpu::kernel`, "The parameter arena"), made on
+    /// first use and kept: an encoder's `i`-th chunk of parameters is `params_chunks[i]`.
+    params_chunks: Arc<Mutex<Vec<wgpu::Buffer>>>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -237,7 +245,7 @@ impl Gpu {
             float_atomics,
             max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
         };
-        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default() })
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default(), submit_nanos: Default::default(), wait_nanos: Default::default(), params_chunks: Default::default() })
     }
 
     /// The adapter in use.
@@ -273,6 +281,20 @@ impl Gpu {
         log::debug!("built kernel {}:{} in {:.0} ms", spec.file, spec.entry, started.elapsed().as_secs_f64() * 1e3);
         self.kernels.lock().unwrap().insert(key, kernel.clone());
         Ok(kernel)
+    }
+
+    /// Arena buffer `i` of dispatch parameters (`gpu::kernel`, "The parameter arena").
+    fn params_chunk(&self, i: usize) -> wgpu::Buffer {
+        let mut chunks = self.params_chunks.lock().unwrap();
+        while chunks.len() <= i {
+            chunks.push(self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("params arena"),
+                size: kernel::PARAMS_CHUNK_BYTES,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        chunks[i].clone()
     }
 
     /// Starts recording a sequence of dispatches and copies.
@@ -314,10 +336,18 @@ impl Gpu {
 
     /// Submits one command buffer (every submission of the engine goes through here, so
     /// [`Gpu::submissions`] counts them).
-    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
+    /// The encoder's parameters are written into the arena in the same locked section
+    /// (`gpu::kernel`, "The parameter arena").
+    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer, params: &kernel::ParamBytes) -> wgpu::SubmissionIndex {
         self.submissions.fetch_add(1, Ordering::Relaxed);
+        let start = std::time::Instant::now();
         let _driver = driver_lock();
-        self.queue.submit([commands])
+        for (chunk, bytes) in params.chunks.iter().zip(&params.bytes) {
+            self.queue.write_buffer(chunk, 0, bytes);
+        }
+        let index = self.queue.submit([commands]);
+        self.submit_nanos.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        index
     }
 
     /// Command buffers submitted so far by this context and its clones: a training step
@@ -328,21 +358,39 @@ impl Gpu {
 
     /// Blocks until `submission` (and every earlier one) is done; later ones may still run.
     pub fn wait_for(&self, submission: wgpu::SubmissionIndex) -> Result<(), GpuError> {
-        let _driver = driver_lock();
-        self.device
-            .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
-            .map(|_| ())
-            .map_err(|e| GpuError::Device(e.to_string()))
+        self.timed_wait(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
     }
 
     /// Blocks until all submitted work is done.
     pub fn wait(&self) -> Result<(), GpuError> {
-        let _driver = driver_lock();
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| GpuError::Device(e.to_string()))
+        self.timed_wait(wgpu::PollType::wait_indefinitely())
     }
+
+    /// Time the host has spent in the driver's submission and waits so far, by this
+    /// context and its clones (`edgenerf speed` reports it per step).
+    pub fn driver_time(&self) -> DriverTime {
+        let of = |n: &AtomicU64| std::time::Duration::from_nanos(n.load(Ordering::Relaxed));
+        DriverTime { submit: of(&self.submit_nanos), wait: of(&self.wait_nanos) }
+    }
+
+    fn timed_wait(&self, poll: wgpu::PollType) -> Result<(), GpuError> {
+        let start = std::time::Instant::now();
+        let _driver = driver_lock();
+        let done = self.device.poll(poll).map(|_| ()).map_err(|e| GpuError::Device(e.to_string()));
+        self.wait_nanos.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        done
+    }
+}
+
+/// Host time spent in the driver ([`Gpu::driver_time`]). On a GPU a submission only
+/// queues the work and the host waits for it in `wait`; lavapipe (Mesa 22.3) runs a
+/// submission's commands before `queue.submit` returns, so there the GPU's work shows
+/// as `submit`. A step's wall time minus both is the host's own work (drawing the
+/// batch, recording the commands).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DriverTime {
+    pub submit: std::time::Duration,
+    pub wait: std::time::Duration,
 }
 
 /// The process-wide driver lock: held while a pipeline is created, a command buffer

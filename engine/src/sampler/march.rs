@@ -27,7 +27,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, KernelSpec};
+use crate::gpu::{BindResource, Binding, Encoder, Gpu, GpuBuffer, KernelSpec};
 use crate::layout::{GpuRay, SampleBatch};
 
 use super::occupancy::OccupancyGeom;
@@ -190,7 +190,7 @@ impl Sampler {
             jitter: jitter_seed.is_some() as u32,
             seed: jitter_seed.unwrap_or(0),
         });
-        let resources = [
+        let resources: [&dyn BindResource; _] = [
             &params,
             &rays.buffer,
             intervals,

@@ -71,6 +71,11 @@ struct CaseResult {
     /// Command buffers submitted per plain step: 1, plus an occupancy grid update's
     /// own every `sampler.update_interval` steps.
     submissions_per_step: f64,
+    /// Of `ms_per_step`, the host's time in the driver's submission and in waits for
+    /// the GPU (`gpu::DriverTime`); the rest is the host's own work (drawing the batch,
+    /// recording the commands).
+    submit_ms_per_step: f64,
+    wait_ms_per_step: f64,
     profiled_ms_per_step: f64,
     samples_per_step: f64,
     field_forward_samples_per_s: f64,
@@ -159,12 +164,14 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     for i in 0..args.warmup {
         step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
-    let (start, submitted) = (Instant::now(), gpu.submissions());
+    let (start, submitted, driver) = (Instant::now(), gpu.submissions(), gpu.driver_time());
     for i in 0..args.steps {
         step(&mut trainer, "plain", i + 1 == args.steps)?;
     }
     let plain_s = start.elapsed().as_secs_f64();
     let submissions = gpu.submissions() - submitted;
+    let driver_end = gpu.driver_time();
+    let per_step_ms = |d: std::time::Duration| 1e3 * d.as_secs_f64() / args.steps.max(1) as f64;
     trainer.set_profiling(true);
     for _ in 0..args.steps {
         step(&mut trainer, "profiled", true)?;
@@ -206,6 +213,8 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         steps_per_s: args.steps as f64 / plain_s.max(1e-12),
         ms_per_step: 1e3 * plain_s / args.steps.max(1) as f64,
         submissions_per_step: submissions as f64 / args.steps.max(1) as f64,
+        submit_ms_per_step: per_step_ms(driver_end.submit - driver.submit),
+        wait_ms_per_step: per_step_ms(driver_end.wait - driver.wait),
         profiled_ms_per_step: 1e3 * total_s / n,
         samples_per_step: times.field_samples as f64 / n,
         field_forward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldForward)),
@@ -226,6 +235,12 @@ fn print_case(r: &CaseResult) {
     println!(
         "  plain: {:.2} steps/s ({:.1} ms/step, {:.2} submissions/step); profiled stage by stage: {:.1} ms/step",
         r.steps_per_s, r.ms_per_step, r.submissions_per_step, r.profiled_ms_per_step
+    );
+    println!(
+        "  host per plain step: {:.2} ms submitting, {:.2} ms waiting for the GPU, {:.2} ms its own work",
+        r.submit_ms_per_step,
+        r.wait_ms_per_step,
+        (r.ms_per_step - r.submit_ms_per_step - r.wait_ms_per_step).max(0.0)
     );
     println!("  {:<18} {:>9} {:>6}", "stage", "ms/step", "share");
     for s in &r.stages {

@@ -93,11 +93,16 @@
 //!   Instant-NGP; combined per corner and feature, zeros skipped) and writes the layer
 //!   inputs/deltas to a scratch buffer (sample-major rows, 11 regions).
 //! * `outer`: weight gradients as sums of outer products over the chunk: one thread per
-//!   (8x8 weight tile, group of [`SAMPLES_PER_THREAD`] samples) accumulates in
-//!   registers and adds its partials with atomics: one atomic per weight per group.
-//!   The normal path's two weight terms share `M = sum_s m_s (x) dg_s` (one more
-//!   `outer` with the ReLU mask), turned into `dW1 += diag(W2[0,:]) M` and
-//!   `dW2[0,j] += <W1[j,:], M[j,:]>` by `finalize` once per backward call.
+//!   (8x8 weight tile, group of [`GridConfig::outer_samples_per_thread`] samples)
+//!   accumulates in registers and adds its partials with atomics: one atomic per weight
+//!   per group. The normal path's two weight terms share `M = sum_s m_s (x) dg_s` (one
+//!   more product, with the ReLU mask), turned into `dW1 += diag(W2[0,:]) M` and
+//!   `dW2[0,j] += <W1[j,:], M[j,:]>` by `finalize` once per backward call. All the
+//!   products of a chunk (five matrices and `M`) are **one launch**: thread `t` belongs
+//!   to the last product whose first thread is at most `t` (`OuterParams::products`).
+//!   On an H200 that made the demo's plain steps 1.27x faster and sparse-small's 1.31x
+//!   than six launches (README, "On an H200: the weight gradients in one launch"): the
+//!   products are small, and launched one after another each waited for the last.
 //! * **The kept encoding** ([`GridConfig::keep_encoding`], on by default): the forward
 //!   of a training step ([`Field::forward_for_backward`], codegen's `ForwardKeep`)
 //!   writes each sample's encoding `e` and the normal path's Jacobian rows (`6 L`
@@ -117,7 +122,7 @@
 //!   only when the pass computes normals.
 //! * The batch is processed in chunks of at most [`GridConfig::backward_chunk`] samples
 //!   so the scratch (2000 bytes per sample at the default width) stays under the
-//!   storage binding limit (128 MiB on lavapipe).
+//!   storage binding limit (128 MiB on lavapipe); on a GPU the presets' batches fit one.
 //! * The per-sample kernels read the MLP weights from a uniform-buffer copy of
 //!   `grid.mlp` (refreshed by a buffer copy of at most 46 KB at the start of each
 //!   pass): every thread reads the same weight at the same time, which is a broadcast
@@ -257,7 +262,7 @@ use serde::{Deserialize, Serialize};
 use super::{Field, FieldError, NamedArray, ParamGroup};
 use std::sync::{Arc, OnceLock};
 
-use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
+use crate::gpu::{BindResource, Binding, Encoder, Gpu, GpuBuffer, GpuError, IndirectArgs, Kernel, KernelSpec};
 use crate::optim::WeightDecay;
 use crate::rng::SplitMix64;
 use crate::layout::{FieldGrads, FieldOutputs, LiveSamples, SampleBatch};
@@ -274,8 +279,17 @@ pub const MAX_WIDTH: u32 = 64;
 /// Floats of the uniform weight block of the kernels (`MAX_WEIGHTS4` in
 /// `grid_lib.wgsl`): every matrix of the largest configuration.
 pub const MAX_WEIGHT_FLOATS: usize = 4 * 2880;
-/// Samples summed per thread by the weight-gradient kernel.
-pub const SAMPLES_PER_THREAD: u32 = 256;
+/// Samples summed per thread by the weight-gradient kernel on a CPU adapter, where
+/// llvmpipe runs each atomic lane by lane and a thread's samples cost little more than
+/// its loads.
+pub const SAMPLES_PER_THREAD_CPU: u32 = 256;
+/// The same on a GPU, where few long-running threads leave the GPU latency-bound and
+/// many short ones contend on the atomics: on an H200, 128 ran the demo, sparse-small
+/// and the default field 1-5 % faster than 32, 64 or 256 (README, "On an H200: the
+/// weight gradients in one launch").
+pub const SAMPLES_PER_THREAD_GPU: u32 = 128;
+/// Largest [`GridConfig::outer_samples_per_thread`].
+pub const MAX_SAMPLES_PER_THREAD: u32 = 1 << 16;
 
 /// Density activation `sigma = act(h0)`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -332,13 +346,23 @@ pub struct GridConfig {
     /// Instant-NGP start). Negative values start from nearly empty space, which only
     /// the training rays fill in.
     pub density_bias: f32,
-    /// Most samples per backward chunk (bounds the scratch memory).
+    /// Most samples per backward chunk (bounds the scratch memory: 1104 bytes a sample
+    /// at the presets' field, 2000 at the default one). The chunk is also capped by the
+    /// adapter's storage-binding limit (128 MiB on lavapipe: about 100 k samples at the
+    /// presets' field) and by the batch's capacity. 131072 lets a GPU run the presets' batches (capacity up
+    /// to 86 k samples) in one chunk: on an H200 that gave 3-5 % more steps/s than
+    /// 65536 (README, "On an H200: the weight gradients in one launch").
     pub backward_chunk: u32,
     /// The training step's forward keeps each sample's encoding (and the normal path's
     /// Jacobian) for the backward, which then reads it instead of gathering the hash
     /// table again ("The kept encoding" in the module doc). On by default; off
     /// recomputes it (the same gradients, in float-atomic order).
     pub keep_encoding: bool,
+    /// Samples each thread of the weight-gradient kernel (`outer`) sums before its
+    /// atomic adds: 0 (the default) picks by adapter, [`SAMPLES_PER_THREAD_CPU`] on a
+    /// CPU adapter and [`SAMPLES_PER_THREAD_GPU`] on a GPU. Fewer means more threads
+    /// and more atomics; the gradients are the same up to float-atomic order.
+    pub outer_samples_per_thread: u32,
     /// Optimizer hints: learning-rate multipliers and the MLP's L2 weight decay.
     pub table_lr_scale: f32,
     pub mlp_lr_scale: f32,
@@ -362,8 +386,9 @@ impl Default for GridConfig {
             normal_max_resolution: 0.0,
             dense_normal_levels: false,
             density_bias: 0.0,
-            backward_chunk: 1 << 16,
+            backward_chunk: 1 << 17,
             keep_encoding: true,
+            outer_samples_per_thread: 0,
             table_lr_scale: 1.0,
             mlp_lr_scale: 1.0,
             mlp_weight_decay: 1e-6,
@@ -436,6 +461,12 @@ impl GridConfig {
         }
         if self.backward_chunk < 64 {
             return err(format!("backward_chunk = {} must be at least 64", self.backward_chunk));
+        }
+        if self.outer_samples_per_thread > MAX_SAMPLES_PER_THREAD {
+            return err(format!(
+                "outer_samples_per_thread = {} must be at most {MAX_SAMPLES_PER_THREAD} (0 picks by adapter)",
+                self.outer_samples_per_thread
+            ));
         }
         Ok(())
     }
@@ -610,10 +641,13 @@ struct GridParams {
     normal_weights: [[f32; 4]; MAX_LEVELS as usize / 4],
 }
 
-/// Mirror of `OuterParams` in `grid_outer.wgsl`.
+/// Products of one `outer` launch at most (`MAX_PRODUCTS` in `grid_outer.wgsl`).
+const MAX_OUTER_PRODUCTS: usize = 6;
+
+/// Mirror of `OuterProduct` in `grid_outer.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct OuterParams {
+struct GpuOuterProduct {
     d_off: u32,
     d_stride: u32,
     x_off: u32,
@@ -626,10 +660,23 @@ struct OuterParams {
     mask_d: u32,
     grad_off: u32,
     grad_stride: u32,
+    to_m: u32,
+    first_thread: u32,
+    _pad: [u32; 2],
+}
+
+/// Mirror of `OuterParams` in `grid_outer.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct OuterParams {
     chunk_start: u32,
     chunk_len: u32,
     spt: u32,
     capacity: u32,
+    n_products: u32,
+    threads: u32,
+    _pad: [u32; 2],
+    products: [GpuOuterProduct; MAX_OUTER_PRODUCTS],
 }
 
 #[repr(C)]
@@ -661,7 +708,8 @@ const BACKWARD: KernelSpec = KernelSpec {
     // params, table, weights, samples, count, d_rgb_density, d_normal, table_grad, scratch
     bindings: &[P, R, U, R, R, R, R, RW, RW],
 };
-const OUTER: KernelSpec = KernelSpec { file: "field/grid_outer.wgsl", entry: "outer", bindings: &[P, R, R, RW] };
+/// params, count, scratch, mlp_grad, normal_m
+const OUTER: KernelSpec = KernelSpec { file: "field/grid_outer.wgsl", entry: "outer", bindings: &[P, R, R, RW, RW] };
 const FINALIZE: KernelSpec =
     KernelSpec { file: "field/grid_finalize.wgsl", entry: "finalize", bindings: &[P, R, R, RW] };
 
@@ -689,32 +737,28 @@ fn scratch_dims4(layout: &GridLayout) -> [u32; region::COUNT] {
 }
 
 /// One weight-gradient product `grad[off + o * stride + i] += sum_s d_s[o] x_s[i]`
-/// over scratch regions `d` (ReLU mask of it with `mask_d`) and `x`.
-struct OuterProduct<'a> {
+/// over scratch regions `d` (ReLU mask of it with `mask_d`) and `x`; `grad` is the MLP
+/// gradient, or the normal path's `M` with `to_m`.
+struct OuterProduct {
     d: usize,
     x: usize,
     out4: u32,
     in4: u32,
     n_out: u32,
     mask_d: bool,
-    grad: &'a GpuBuffer<f32>,
+    to_m: bool,
     off: usize,
     stride: usize,
 }
 
-impl<'a> OuterProduct<'a> {
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        d: usize,
-        x: usize,
-        out4: u32,
-        in4: u32,
-        n_out: u32,
-        grad: &'a GpuBuffer<f32>,
-        off: usize,
-        stride: usize,
-    ) -> Self {
-        Self { d, x, out4, in4, n_out, mask_d: false, grad, off, stride }
+impl OuterProduct {
+    fn new(d: usize, x: usize, out4: u32, in4: u32, n_out: u32, off: usize, stride: usize) -> Self {
+        Self { d, x, out4, in4, n_out, mask_d: false, to_m: false, off, stride }
+    }
+
+    /// Threads of an `outer` launch for this product over `groups` sample groups.
+    fn threads(&self, groups: u32) -> u32 {
+        self.out4.div_ceil(2) * self.in4.div_ceil(2) * groups
     }
 }
 
@@ -971,7 +1015,7 @@ impl GridField {
         let params = enc.params(&self.dispatch_params(cap, flags, 0, cap));
         enc.copy(&self.mlp.buffer, mlp_uniform, self.layout.mlp_len as u64 * 4);
         args.record(enc, &batch.count.buffer, cap, cap.max(1), 1)?;
-        let mut bindings = vec![
+        let mut bindings: Vec<&dyn BindResource> = vec![
             &params,
             table,
             mlp_uniform,
@@ -1055,6 +1099,11 @@ impl Field for GridField {
             self.kernel(gpu, &BACKWARD, GridKernel::Backward)?
         };
         let outer = gpu.kernel(&OUTER)?;
+        let spt = match self.config.outer_samples_per_thread {
+            0 if gpu.adapter().is_cpu() => SAMPLES_PER_THREAD_CPU,
+            0 => SAMPLES_PER_THREAD_GPU,
+            n => n,
+        };
         let finalize = gpu.kernel(&FINALIZE)?;
         let scratch = self.scratch.as_ref().expect("scratch allocated above");
         let dims = scratch_dims4(&self.layout);
@@ -1063,17 +1112,18 @@ impl Field for GridField {
         let product = OuterProduct::new;
         let w = l.width as u32;
         let mut products = vec![
-            product(region::D1, region::E, w4, in4, w, &self.mlp_grad, l.w1, l.in_pad),
-            product(region::DH, region::A1, 4, w4, DENSITY_OUT, &self.mlp_grad, l.w2, l.width),
-            product(region::DC1, region::XC, w4, 8, w, &self.mlp_grad, l.c1, 32),
-            product(region::DC2, region::AC1, w4, w4, w, &self.mlp_grad, l.c2, l.width),
-            product(region::DO, region::AC2, 1, w4, 3, &self.mlp_grad, l.c3, l.width),
+            product(region::D1, region::E, w4, in4, w, l.w1, l.in_pad),
+            product(region::DH, region::A1, 4, w4, DENSITY_OUT, l.w2, l.width),
+            product(region::DC1, region::XC, w4, 8, w, l.c1, 32),
+            product(region::DC2, region::AC1, w4, w4, w, l.c2, l.width),
+            product(region::DO, region::AC2, 1, w4, 3, l.c3, l.width),
         ];
         if normal_grads {
             // M = sum_s [a1_s > 0] (x) dg_s
-            let m = product(region::A1, region::DG, w4, in4, w, &self.normal_m, 0, l.in_pad);
-            products.push(OuterProduct { mask_d: true, ..m });
+            let m = product(region::A1, region::DG, w4, in4, w, 0, l.in_pad);
+            products.push(OuterProduct { mask_d: true, to_m: true, ..m });
         }
+        assert!(products.len() <= MAX_OUTER_PRODUCTS, "outer: {} products for one launch", products.len());
         let flags = (if normal_grads { FLAG_NORMALS } else { 0 }) | (if live.is_some() { FLAG_LIVE } else { 0 });
         let args = self.indirect.as_ref().expect("made above");
         if normal_grads {
@@ -1101,9 +1151,18 @@ impl Field for GridField {
                 ],
                 start / chunk,
             );
-            let groups = len.div_ceil(SAMPLES_PER_THREAD);
-            for pr in &products {
-                let p = OuterParams {
+            // Every product of the chunk in one launch (`grid_outer.wgsl`).
+            let groups = len.div_ceil(spt);
+            let mut p = OuterParams {
+                chunk_start: start,
+                chunk_len: len,
+                spt,
+                capacity: cap,
+                n_products: products.len() as u32,
+                ..Zeroable::zeroed()
+            };
+            for (slot, pr) in p.products.iter_mut().zip(&products) {
+                *slot = GpuOuterProduct {
                     d_off: scratch.offsets[pr.d],
                     d_stride: dims[pr.d],
                     x_off: scratch.offsets[pr.x],
@@ -1116,18 +1175,18 @@ impl Field for GridField {
                     mask_d: pr.mask_d as u32,
                     grad_off: pr.off as u32,
                     grad_stride: pr.stride as u32,
-                    chunk_start: start,
-                    chunk_len: len,
-                    spt: SAMPLES_PER_THREAD,
-                    capacity: cap,
+                    to_m: pr.to_m as u32,
+                    first_thread: p.threads,
+                    _pad: [0; 2],
                 };
-                let pb = enc.params(&p);
-                enc.dispatch_threads(
-                    &outer,
-                    &[&pb, count, &scratch.buffer.buffer, &pr.grad.buffer],
-                    p.tiles_o * p.tiles_i * groups,
-                );
+                p.threads += pr.threads(groups);
             }
+            let pb = enc.params(&p);
+            enc.dispatch_threads(
+                &outer,
+                &[&pb, count, &scratch.buffer.buffer, &self.mlp_grad.buffer, &self.normal_m.buffer],
+                p.threads,
+            );
             start += len;
         }
         if normal_grads {
@@ -1223,7 +1282,8 @@ mod wgsl_mirrors {
     fn rust_mirrors_match_their_wgsl_structs() {
         crate::assert_wgsl_mirror!(GpuLevel, "field/grid_lib.wgsl", "Level", [offset, size, res, scale]);
         crate::assert_wgsl_mirror!(GridParams, "field/grid_lib.wgsl", "GridParams", [aabb_min, n_levels, inv_extent, active_levels, in4, width4, activation, flags, w1, w2, c1, c2, c3, n, chunk_start, chunk_len, normal_eps, density_bias, scratch, levels, normal_weights]);
-        crate::assert_wgsl_mirror!(OuterParams, "field/grid_outer.wgsl", "OuterParams", [d_off, d_stride, x_off, x_stride, out4, in4, tiles_i, tiles_o, n_out, mask_d, grad_off, grad_stride, chunk_start, chunk_len, spt, capacity]);
+        crate::assert_wgsl_mirror!(GpuOuterProduct, "field/grid_outer.wgsl", "OuterProduct", [d_off, d_stride, x_off, x_stride, out4, in4, tiles_i, tiles_o, n_out, mask_d, grad_off, grad_stride, to_m, first_thread]);
+        crate::assert_wgsl_mirror!(OuterParams, "field/grid_outer.wgsl", "OuterParams", [chunk_start, chunk_len, spt, capacity, n_products, threads, products]);
         crate::assert_wgsl_mirror!(FinalizeParams, "field/grid_finalize.wgsl", "FinalizeParams", [w1, w2, in4, width]);
     }
 }

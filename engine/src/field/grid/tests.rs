@@ -775,6 +775,18 @@ fn field_grid_backward_chunks_and_accumulation() {
     assert_close("accumulated mlp", &to_f64(&twice), &doubled, 3e-4, 3e-3);
     s.field.zero_grads(&s.gpu);
     assert!(s.field.mlp_grad.read(&s.gpu).unwrap().iter().all(|&v| v == 0.0));
+
+    // The weight-gradient kernel's sample groups: 7 samples a thread (groups that do
+    // not divide the chunk, a short last one) and one sample a thread give the same
+    // weight gradients; the table's are not computed there.
+    for spt in [7, 1] {
+        let cfg = GridConfig { outer_samples_per_thread: spt, ..cfg.clone() };
+        let mut g = setup(&cfg, n, 256, 71, false);
+        g.field.zero_grads(&g.gpu);
+        g.field.backward(&g.gpu, &g.batch, &w.upload(&g.gpu, 256), None, true).unwrap();
+        let what = format!("mlp, {spt} samples a thread");
+        assert_close(&what, &to_f64(&g.field.mlp_grad.read(&g.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
+    }
 }
 
 #[test]
