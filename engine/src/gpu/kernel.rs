@@ -416,7 +416,8 @@ impl Kernel {
 pub const PARAMS_CHUNK_BYTES: u64 = 1 << 16;
 
 /// A dispatch's parameters ([`Binding::Params`]): a range of an arena buffer, written
-/// when its encoder is submitted (module doc, "The parameter arena").
+/// when its encoder is submitted (module doc, "The parameter arena"), so it is bound
+/// only by dispatches of the encoder that made it.
 #[derive(Clone, Debug)]
 pub struct Params {
     buffer: wgpu::Buffer,
@@ -511,8 +512,8 @@ impl<'g> Encoder<'g> {
         })
     }
 
-    /// Dispatches `kernel` over an explicit workgroup grid; `resources[i]` is bound
-    /// whole at binding `i`.
+    /// Dispatches `kernel` over an explicit workgroup grid; `resources[i]` is bound at
+    /// binding `i` (a buffer whole, a [`Params`] its range).
     pub fn dispatch(&mut self, kernel: &Kernel, resources: &[&dyn BindResource], groups: [u32; 3]) {
         if groups.contains(&0) {
             return;
