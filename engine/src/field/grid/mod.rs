@@ -349,9 +349,10 @@ pub struct GridConfig {
     /// Most samples per backward chunk (bounds the scratch memory: 1104 bytes a sample
     /// at the presets' field, 2000 at the default one). The chunk is also capped by the
     /// adapter's storage-binding limit (128 MiB on lavapipe: about 100 k samples at the
-    /// presets' field) and by the batch's capacity. 131072 lets a GPU run the presets' batches (capacity up
-    /// to 86 k samples) in one chunk: on an H200 that gave 3-5 % more steps/s than
-    /// 65536 (README, "On an H200: the weight gradients in one launch").
+    /// presets' field) and by the batch's capacity. 131072 lets a GPU run the presets'
+    /// batches (capacity up to 86 k samples) in one chunk: on an H200 that gave 1-5 %
+    /// more steps/s than 65536 (README, "On an H200: the weight gradients in one
+    /// launch").
     pub backward_chunk: u32,
     /// The training step's forward keeps each sample's encoding (and the normal path's
     /// Jacobian) for the backward, which then reads it instead of gathering the hash
