@@ -33,11 +33,23 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     }
     // Plain steps 1-2 update no occupancy grid: one submission each.
     assert_eq!(case["submissions_per_step"].as_f64().unwrap(), 1.0, "{case}");
+    // The host's split of a plain step: submission and waits inside the step's time.
+    let (submit, wait) = (case["submit_ms_per_step"].as_f64().unwrap(), case["wait_ms_per_step"].as_f64().unwrap());
+    assert!(submit >= 0.0 && wait >= 0.0 && submit + wait <= case["ms_per_step"].as_f64().unwrap(), "{case}");
+    assert!(t.contains("host per plain step"), "{t}");
     let field_ms = |name: &str| stages.iter().find(|s| s["stage"] == name).unwrap()["ms_per_step"].as_f64().unwrap();
     assert!(field_ms("field forward") > 0.0 && field_ms("field backward") > 0.0);
 
     // --kernels: every kernel of a step, the slowest first, the field's among them.
     assert!(t.contains("kernels timed one by one"), "{t}");
+    // lavapipe and NVIDIA have timestamp queries: the kernels' GPU time, not their
+    // submissions and waits (an adapter without them falls back to wall time).
+    let adapter = json["adapter"].as_str().unwrap();
+    if adapter.contains("llvmpipe") || adapter.contains("NVIDIA") {
+        assert_eq!(case["kernel_timer"], "GPU timestamps", "{adapter}: {case}");
+    } else {
+        assert!(case["kernel_timer"].is_string(), "{case}");
+    }
     let kernels = case["kernels"].as_array().unwrap();
     let ms: Vec<f64> = kernels.iter().map(|k| k["ms_per_step"].as_f64().unwrap()).collect();
     assert!(ms.windows(2).all(|w| w[0] >= w[1]), "{ms:?}");

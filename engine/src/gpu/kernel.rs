@@ -464,11 +464,19 @@ pub struct Encoder<'g> {
     pass: Option<wgpu::ComputePass<'static>>,
     encoder: wgpu::CommandEncoder,
     params: ParamBytes,
+    /// Per-kernel timing with timestamps: the next pass writes them (`kernel_timing`).
+    timer: Option<super::kernel_timing::GpuTimer>,
 }
 
 impl<'g> Encoder<'g> {
     pub(super) fn new(gpu: &'g Gpu) -> Self {
-        Self { gpu, pass: None, encoder: gpu.device.create_command_encoder(&Default::default()), params: ParamBytes::default() }
+        Self {
+            gpu,
+            pass: None,
+            encoder: gpu.device.create_command_encoder(&Default::default()),
+            params: ParamBytes::default(),
+            timer: None,
+        }
     }
 
     /// `value` as a dispatch's parameters ([`Binding::Params`]), in the parameter arena
@@ -530,10 +538,26 @@ impl<'g> Encoder<'g> {
             return;
         }
         self.run_recorded();
+        // Held for the whole timed dispatch: one query set per context.
+        let gpu = self.gpu;
+        let mut timer = gpu.kernel_timer.lock().unwrap_or_else(|p| p.into_inner());
+        if timer.is_none() && gpu.adapter().timestamps {
+            *timer = Some(super::kernel_timing::GpuTimer::new(&gpu.device));
+        }
+        self.timer = timer.clone();
         let started = std::time::Instant::now();
         record(self);
+        self.pass = None;
+        if let Some(t) = self.timer.take() {
+            t.record_resolve(&mut self.encoder);
+        }
         self.run_recorded();
-        self.gpu.charge_kernel(&kernel.spec, started.elapsed());
+        // A failed readback surfaces at the caller's next one; timing only loses a figure.
+        let elapsed = match timer.as_ref() {
+            Some(t) => t.elapsed(gpu).unwrap_or_default(),
+            None => started.elapsed(),
+        };
+        gpu.charge_kernel(&kernel.spec, elapsed);
     }
 
     /// Submits what was recorded so far and waits for it (per-kernel timing only); the
@@ -557,11 +581,10 @@ impl<'g> Encoder<'g> {
     /// The open compute pass with `kernel`'s pipeline and `resources` bound.
     fn begin_pass(&mut self, kernel: &Kernel, resources: &[&dyn BindResource]) -> &mut wgpu::ComputePass<'static> {
         let bind_group = self.bind_group(kernel, resources);
-        let encoder = &mut self.encoder;
+        let (encoder, timer) = (&mut self.encoder, &self.timer);
         let pass = self.pass.get_or_insert_with(|| {
-            encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("edgenerf"), timestamp_writes: None })
-                .forget_lifetime()
+            let timestamp_writes = timer.as_ref().map(|t| t.pass_writes());
+            encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("edgenerf"), timestamp_writes }).forget_lifetime()
         });
         pass.set_pipeline(&kernel.pipeline);
         pass.set_bind_group(0, &bind_group, &[]);

@@ -108,6 +108,9 @@ pub struct AdapterSummary {
     pub driver_info: String,
     pub backend: String,
     pub float_atomics: bool,
+    /// GPU timestamps around a compute pass (`TIMESTAMP_QUERY`): per-kernel timing
+    /// then measures the kernels' execution, not their submissions and waits.
+    pub timestamps: bool,
     pub max_storage_binding_bytes: u64,
 }
 
@@ -122,13 +125,14 @@ impl std::fmt::Display for AdapterSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} ({}, {} {} {}; float atomics: {}; max storage binding {} MiB)",
+            "{} ({}, {} {} {}; float atomics: {}; timestamps: {}; max storage binding {} MiB)",
             self.name,
             self.device_type,
             self.backend,
             self.driver,
             self.driver_info,
             if self.float_atomics { "native" } else { "compare-exchange fallback" },
+            if self.timestamps { "yes" } else { "no" },
             self.max_storage_binding_bytes >> 20
         )
     }
@@ -152,6 +156,9 @@ pub struct Gpu {
     /// The parameter arena's buffers (`gpu::kernel`, "The parameter arena"), made on
     /// first use and kept: an encoder's `i`-th chunk of parameters is `params_chunks[i]`.
     params_chunks: Arc<Mutex<Vec<wgpu::Buffer>>>,
+    /// The timestamp queries of per-kernel timing, made on first use where the adapter
+    /// has them (`kernel_timing`); locked for the whole of a timed dispatch.
+    kernel_timer: Arc<Mutex<Option<kernel_timing::GpuTimer>>>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -214,8 +221,12 @@ impl Gpu {
         let info = adapter.get_info();
         let float_atomics =
             !opts.disable_float_atomics && adapter.features().contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
-        let required_features =
+        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let mut required_features =
             if float_atomics { wgpu::Features::SHADER_FLOAT32_ATOMIC } else { wgpu::Features::empty() };
+        if timestamps {
+            required_features |= wgpu::Features::TIMESTAMP_QUERY;
+        }
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("edgenerf"),
@@ -243,9 +254,10 @@ impl Gpu {
             driver_info: info.driver_info.clone(),
             backend: format!("{:?}", info.backend),
             float_atomics,
+            timestamps,
             max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
         };
-        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default(), submit_nanos: Default::default(), wait_nanos: Default::default(), params_chunks: Default::default() })
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default(), submit_nanos: Default::default(), wait_nanos: Default::default(), params_chunks: Default::default(), kernel_timer: Default::default() })
     }
 
     /// The adapter in use.

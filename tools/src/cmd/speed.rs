@@ -84,6 +84,10 @@ struct CaseResult {
     /// With `--kernels`: every kernel's wall time per step, the slowest first.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     kernels: Vec<KernelRow>,
+    /// How `kernels` were timed: the GPU's timestamps around each dispatch, or the wall
+    /// time of its submission and wait (`gpu::kernel_timing`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    kernel_timer: Option<&'static str>,
 }
 
 #[derive(serde::Serialize)]
@@ -223,6 +227,11 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
             .iter()
             .map(|&s| StageRow { stage: s.name(), ms_per_step: 1e3 * times.of(s) / n, share: times.of(s) / total_s.max(1e-12) })
             .collect(),
+        kernel_timer: args.kernels.then_some(if gpu.adapter().timestamps {
+            "GPU timestamps"
+        } else {
+            "wall time of each dispatch's submission and wait"
+        }),
         kernels,
     })
 }
@@ -253,7 +262,8 @@ fn print_case(r: &CaseResult) {
     );
     if !r.kernels.is_empty() {
         let total: f64 = r.kernels.iter().map(|k| k.ms_per_step).sum();
-        println!("  kernels timed one by one: {total:.1} ms/step; the slowest (all in speed.json):");
+        let timer = r.kernel_timer.unwrap_or("wall time");
+        println!("  kernels timed one by one ({timer}): {total:.1} ms/step; the slowest (all in speed.json):");
         println!("  {:<44} {:>9} {:>6} {:>10}", "kernel", "ms/step", "share", "launches");
         for k in r.kernels.iter().take(KERNELS_SHOWN) {
             println!("  {:<44} {:>9.2} {:>5.1}% {:>10.1}", k.kernel, k.ms_per_step, 100.0 * k.share, k.dispatches_per_step);
