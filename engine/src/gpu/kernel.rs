@@ -464,8 +464,9 @@ pub struct Encoder<'g> {
     pass: Option<wgpu::ComputePass<'static>>,
     encoder: wgpu::CommandEncoder,
     params: ParamBytes,
-    /// Per-kernel timing with timestamps: the next pass writes them (`kernel_timing`).
-    timer: Option<super::kernel_timing::GpuTimer>,
+    /// Per-kernel timing with timestamps: the query set the next pass writes its
+    /// beginning and end into (`kernel_timing`).
+    timestamps: Option<wgpu::QuerySet>,
 }
 
 impl<'g> Encoder<'g> {
@@ -475,7 +476,7 @@ impl<'g> Encoder<'g> {
             pass: None,
             encoder: gpu.device.create_command_encoder(&Default::default()),
             params: ParamBytes::default(),
-            timer: None,
+            timestamps: None,
         }
     }
 
@@ -542,13 +543,15 @@ impl<'g> Encoder<'g> {
         let gpu = self.gpu;
         let mut timer = gpu.kernel_timer.lock().unwrap_or_else(|p| p.into_inner());
         if timer.is_none() && gpu.adapter().timestamps {
-            *timer = Some(super::kernel_timing::GpuTimer::new(&gpu.device));
+            // Without its 16-byte buffers the kernel is timed by wall time.
+            *timer = super::kernel_timing::GpuTimer::new(gpu).ok();
         }
-        self.timer = timer.clone();
+        self.timestamps = timer.as_ref().map(|t| t.queries.clone());
         let started = std::time::Instant::now();
         record(self);
         self.pass = None;
-        if let Some(t) = self.timer.take() {
+        self.timestamps = None;
+        if let Some(t) = timer.as_ref() {
             t.record_resolve(&mut self.encoder);
         }
         self.run_recorded();
@@ -581,9 +584,9 @@ impl<'g> Encoder<'g> {
     /// The open compute pass with `kernel`'s pipeline and `resources` bound.
     fn begin_pass(&mut self, kernel: &Kernel, resources: &[&dyn BindResource]) -> &mut wgpu::ComputePass<'static> {
         let bind_group = self.bind_group(kernel, resources);
-        let (encoder, timer) = (&mut self.encoder, &self.timer);
+        let (encoder, timestamps) = (&mut self.encoder, &self.timestamps);
         let pass = self.pass.get_or_insert_with(|| {
-            let timestamp_writes = timer.as_ref().map(|t| t.pass_writes());
+            let timestamp_writes = timestamps.as_ref().map(super::kernel_timing::GpuTimer::pass_writes);
             encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("edgenerf"), timestamp_writes }).forget_lifetime()
         });
         pass.set_pipeline(&kernel.pipeline);

@@ -21,60 +21,55 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
+use super::{Gpu, GpuBuffer, GpuError};
+
 /// Two timestamp queries (a timed pass's beginning and end), the buffer they resolve
-/// into and its mappable copy.
-#[derive(Clone)]
+/// into (`QUERY_RESOLVE`, which a [`GpuBuffer`] has not) and a [`GpuBuffer`] copy of it
+/// that the ordinary readback reads.
 pub(crate) struct GpuTimer {
     pub(crate) queries: wgpu::QuerySet,
-    pub(crate) resolved: wgpu::Buffer,
-    pub(crate) staging: wgpu::Buffer,
+    resolved: wgpu::Buffer,
+    ticks: GpuBuffer<u64>,
 }
 
 impl GpuTimer {
-    pub(crate) fn new(device: &wgpu::Device) -> Self {
-        let buffer = |label, usage| {
-            device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: 16, usage, mapped_at_creation: false })
-        };
-        GpuTimer {
+    pub(crate) fn new(gpu: &Gpu) -> Result<Self, GpuError> {
+        let device = &gpu.device;
+        Ok(GpuTimer {
             queries: device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("kernel timer"),
                 ty: wgpu::QueryType::Timestamp,
                 count: 2,
             }),
-            resolved: buffer("kernel timer resolved", wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC),
-            staging: buffer("kernel timer staging", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST),
-        }
+            resolved: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("kernel timer resolved"),
+                size: 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            ticks: GpuBuffer::zeros(gpu, "kernel timer ticks", 2)?,
+        })
     }
 
-    /// The pass timestamps to write: query 0 at its beginning, 1 at its end.
-    pub(crate) fn pass_writes(&self) -> wgpu::ComputePassTimestampWrites<'_> {
+    /// The timestamps a timed pass writes into `queries`: 0 at its beginning, 1 at its end.
+    pub(crate) fn pass_writes(queries: &wgpu::QuerySet) -> wgpu::ComputePassTimestampWrites<'_> {
         wgpu::ComputePassTimestampWrites {
-            query_set: &self.queries,
+            query_set: queries,
             beginning_of_pass_write_index: Some(0),
             end_of_pass_write_index: Some(1),
         }
     }
 
-    /// Records the resolve of both queries and the copy into `staging`.
+    /// Records the resolve of both queries and their copy into `ticks`.
     pub(crate) fn record_resolve(&self, encoder: &mut wgpu::CommandEncoder) {
         encoder.resolve_query_set(&self.queries, 0..2, &self.resolved, 0);
-        encoder.copy_buffer_to_buffer(&self.resolved, 0, &self.staging, 0, 16);
+        encoder.copy_buffer_to_buffer(&self.resolved, 0, &self.ticks.buffer, 0, 16);
     }
 
-    /// The time between the two timestamps, after the submission holding
-    /// [`Self::record_resolve`] is done (`gpu` has waited for it).
-    pub(crate) fn elapsed(&self, gpu: &super::Gpu) -> Result<Duration, super::GpuError> {
-        let slice = self.staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        rx.recv()
-            .map_err(|e| super::GpuError::Readback(e.to_string()))?
-            .map_err(|e| super::GpuError::Readback(e.to_string()))?;
-        let ticks: [u64; 2] = bytemuck::pod_read_unaligned(&slice.get_mapped_range().map_err(|e| super::GpuError::Readback(e.to_string()))?[..16]);
-        self.staging.unmap();
+    /// The time between the two timestamps, read back after the submission holding
+    /// [`Self::record_resolve`].
+    pub(crate) fn elapsed(&self, gpu: &Gpu) -> Result<Duration, GpuError> {
+        let ticks = self.ticks.read(gpu)?;
         let ns = ticks[1].saturating_sub(ticks[0]) as f64 * gpu.queue.get_timestamp_period() as f64;
         Ok(Duration::from_nanos(ns as u64))
     }
