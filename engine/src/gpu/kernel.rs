@@ -61,6 +61,13 @@
 //! copy, a clear or a submission): wgpu orders the dispatches of a pass as it orders
 //! passes. With the arena it made the H200's training steps 1.2x faster.
 //!
+//! The bind groups are kept across dispatches ([`super::bind_cache`]): a
+//! [`Binding::Params`] slot is a dynamic-offset binding of the arena buffer's first
+//! bytes, and the dispatch's arena offset is given when the bind group is set, so
+//! every dispatch of a kernel that binds the same buffers reuses one bind group, step
+//! after step. Recording a dispatch then costs 2.2-3.1 us instead of 3.3-4.6 on
+//! lavapipe (`dispatch_recording_cost`).
+//!
 //! # Generated code
 //! A kernel whose file has a line `//#generated` is incomplete on its own: its owner
 //! appends WGSL generated for the configuration in use (functions the file calls) and
@@ -280,13 +287,16 @@ fn validate_reflected(name: &str, float_atomics: bool, generated: &str)
 
 impl KernelSpec {
     /// Storage and uniform buffers of the bind layout against the device's per-stage
-    /// limits (wgpu would otherwise panic on the layout with a validation error).
+    /// limits, and its parameter slots against the dynamic-offset limit (wgpu would otherwise panic on the layout with a validation error).
     pub fn check_limits(&self, limits: &wgpu::Limits) -> Result<(), GpuError> {
         let storage = self.bindings.iter().filter(|b| !matches!(b, Binding::Uniform)).count() as u32;
         let uniform = self.bindings.len() as u32 - storage;
+        let params = self.bindings.iter().filter(|b| **b == Binding::Params).count() as u32;
+        let dynamic = limits.max_dynamic_storage_buffers_per_pipeline_layout.min(MAX_PARAMS_BINDINGS as u32);
         for (kind, count, limit) in [
             ("storage", storage, limits.max_storage_buffers_per_shader_stage),
             ("uniform", uniform, limits.max_uniform_buffers_per_shader_stage),
+            ("dynamic-offset parameter", params, dynamic),
         ] {
             if count > limit {
                 return Err(GpuError::TooManyBindings {
@@ -385,7 +395,9 @@ impl Kernel {
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Buffer {
                     ty: b.buffer_type(),
-                    has_dynamic_offset: false,
+                    // A dispatch's parameters are an arena range given when the bind
+                    // group is set (`bind_cache`).
+                    has_dynamic_offset: *b == Binding::Params,
                     min_binding_size: None,
                 },
                 count: None,
@@ -412,6 +424,10 @@ impl Kernel {
     }
 }
 
+/// Most [`Binding::Params`] slots a kernel may have (the WebGPU default of dynamic
+/// storage-buffer offsets per pipeline layout; [`KernelSpec::check_limits`]).
+pub const MAX_PARAMS_BINDINGS: usize = 4;
+
 /// Bytes of one arena buffer of dispatch parameters (module doc, "The parameter arena").
 pub const PARAMS_CHUNK_BYTES: u64 = 1 << 16;
 
@@ -427,22 +443,37 @@ pub struct Params {
 
 /// What a dispatch binds at one slot: a whole buffer, or a dispatch's [`Params`].
 pub trait BindResource {
-    fn binding(&self) -> wgpu::BindingResource<'_>;
-}
+    /// The buffer, offset and size (`None`: to its end) the bind group binds; what
+    /// [`super::bind_cache`] keys the bind group by.
+    fn bound_range(&self) -> (&wgpu::Buffer, u64, Option<std::num::NonZeroU64>);
 
-impl BindResource for wgpu::Buffer {
+    /// The offset added when the bind group is set ([`Binding::Params`] slots are
+    /// dynamic-offset bindings); `None` for a resource bound where it stands.
+    fn dynamic_offset(&self) -> Option<u32> {
+        None
+    }
+
     fn binding(&self) -> wgpu::BindingResource<'_> {
-        self.as_entire_binding()
+        let (buffer, offset, size) = self.bound_range();
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding { buffer, offset, size })
     }
 }
 
+impl BindResource for wgpu::Buffer {
+    fn bound_range(&self) -> (&wgpu::Buffer, u64, Option<std::num::NonZeroU64>) {
+        (self, 0, None)
+    }
+}
+
+/// Bound at offset 0 with its size, and its arena offset given when the bind group is
+/// set: every dispatch's parameters in one arena buffer share one bind group.
 impl BindResource for Params {
-    fn binding(&self) -> wgpu::BindingResource<'_> {
-        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-            buffer: &self.buffer,
-            offset: self.offset,
-            size: std::num::NonZeroU64::new(self.size),
-        })
+    fn bound_range(&self) -> (&wgpu::Buffer, u64, Option<std::num::NonZeroU64>) {
+        (&self.buffer, 0, std::num::NonZeroU64::new(self.size))
+    }
+
+    fn dynamic_offset(&self) -> Option<u32> {
+        Some(u32::try_from(self.offset).expect("arena offsets are below PARAMS_CHUNK_BYTES"))
     }
 }
 
@@ -499,8 +530,10 @@ impl<'g> Encoder<'g> {
         Params { buffer: self.params.chunks.last().expect("pushed above").clone(), offset, size }
     }
 
-    /// The bind group of `resources` (`resources[i]` bound at binding `i`).
-    fn bind_group(&self, kernel: &Kernel, resources: &[&dyn BindResource]) -> wgpu::BindGroup {
+    /// The bind group of `resources` (`resources[i]` bound at binding `i`), from the
+    /// context's cache ([`super::bind_cache`]), and the dynamic offsets of its
+    /// [`Binding::Params`] slots in binding order (`offsets[..n]`).
+    fn bind_group(&self, kernel: &Kernel, resources: &[&dyn BindResource]) -> (wgpu::BindGroup, [u32; MAX_PARAMS_BINDINGS], usize) {
         assert_eq!(
             resources.len(),
             kernel.spec.bindings.len(),
@@ -509,16 +542,19 @@ impl<'g> Encoder<'g> {
             resources.len(),
             kernel.spec.bindings.len()
         );
-        let entries: Vec<_> = resources
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.binding() })
-            .collect();
-        self.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.spec.entry),
-            layout: &kernel.layout,
-            entries: &entries,
-        })
+        let mut offsets = [0u32; MAX_PARAMS_BINDINGS];
+        let mut n = 0;
+        for (i, (binding, res)) in kernel.spec.bindings.iter().zip(resources).enumerate() {
+            match (binding, res.dynamic_offset()) {
+                (Binding::Params, offset) => {
+                    offsets[n] = offset.unwrap_or(0);
+                    n += 1;
+                }
+                (_, None) => {}
+                (b, Some(_)) => panic!("{}: dispatch parameters bound at binding {i}, a {b:?} slot", kernel.spec.entry),
+            }
+        }
+        (self.gpu.bind_group(kernel.spec.entry, &kernel.layout, resources), offsets, n)
     }
 
     /// Dispatches `kernel` over an explicit workgroup grid; `resources[i]` is bound at
@@ -583,14 +619,14 @@ impl<'g> Encoder<'g> {
 
     /// The open compute pass with `kernel`'s pipeline and `resources` bound.
     fn begin_pass(&mut self, kernel: &Kernel, resources: &[&dyn BindResource]) -> &mut wgpu::ComputePass<'static> {
-        let bind_group = self.bind_group(kernel, resources);
+        let (bind_group, offsets, n_offsets) = self.bind_group(kernel, resources);
         let (encoder, timestamps) = (&mut self.encoder, &self.timestamps);
         let pass = self.pass.get_or_insert_with(|| {
             let timestamp_writes = timestamps.as_ref().map(super::kernel_timing::GpuTimer::pass_writes);
             encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("edgenerf"), timestamp_writes }).forget_lifetime()
         });
         pass.set_pipeline(&kernel.pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_bind_group(0, &bind_group, &offsets[..n_offsets]);
         pass
     }
 
@@ -735,7 +771,9 @@ pub(crate) mod tests {
     /// more dispatches than one arena buffer holds, so their parameters share arena
     /// ranges and spill into a second buffer, submitted in the opposite order; every
     /// dispatch must read its own parameters. Dispatch `j` of encoder A adds 1 to bins
-    /// `0..j + 1` (its `n`), of B to bins `0..j % 7 + 1`.
+    /// `0..j + 1` (its `n`), of B to bins `0..j % 7 + 1`. The dispatches of an encoder
+    /// in one arena buffer share one cached bind group (`bind_cache`), so this also
+    /// checks that each reads its own dynamic offset.
     #[test]
     fn dispatch_parameters_of_interleaved_encoders_share_the_arena() {
         use crate::gpu::selftest::{Params, SPEC};
@@ -770,13 +808,13 @@ pub(crate) mod tests {
     /// spends per kernel launch before the GPU runs anything), and the same with the
     /// wait. `cargo test -p edgenerf-engine --release dispatch_recording_cost --
     /// --ignored --nocapture`. On the 2-core CPU with lavapipe (2026-11-27): 8-9 us
-    /// to record and submit, 60-85 us with lavapipe running the tiny dispatch. A pool
-    /// of parameter buffers with a bind-group cache was measured against it (8-10 us)
-    /// and not kept then: creating them is not what recording costs on lavapipe. On an
+    /// to record and submit, 60-85 us with lavapipe running the tiny dispatch. On an
     /// H200 (2026-11-27, later) the parameter arena and one compute pass per run of
     /// dispatches cut the host's own work per training step from 0.61-0.83 to
     /// 0.37-0.60 ms and raised the steps/s 1.2x (README, "On an H200: the weight
-    /// gradients in one launch").
+    /// gradients in one launch"); here they brought recording to 3.3-4.6 us. The bind
+    /// groups kept across dispatches (`bind_cache`, 2026-11-27, eighth session) then
+    /// gave 2.2-3.1 us (five interleaved rounds).
     #[test]
     #[ignore]
     fn dispatch_recording_cost() {

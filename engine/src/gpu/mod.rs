@@ -39,6 +39,7 @@
 //! encoder's parameter bytes, written into the shared parameter arena in the same
 //! locked section as its submission (`gpu::kernel`, "The parameter arena").
 
+pub mod bind_cache;
 mod buffer;
 pub mod selftest;
 mod indirect;
@@ -159,6 +160,8 @@ pub struct Gpu {
     /// The timestamp queries of per-kernel timing, made on first use where the adapter
     /// has them (`kernel_timing`); locked for the whole of a timed dispatch.
     kernel_timer: Arc<Mutex<Option<kernel_timing::GpuTimer>>>,
+    /// The bind groups of recent dispatches ([`bind_cache`]).
+    bind_groups: Arc<Mutex<bind_cache::BindGroupCache>>,
 }
 
 const NVIDIA_VENDOR_ID: u32 = 0x10de;
@@ -257,7 +260,7 @@ impl Gpu {
             timestamps,
             max_storage_binding_bytes: limits.max_storage_buffer_binding_size as u64,
         };
-        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default(), submit_nanos: Default::default(), wait_nanos: Default::default(), params_chunks: Default::default(), kernel_timer: Default::default() })
+        Ok(Gpu { device, queue, summary: Arc::new(summary), limits, kernels: Default::default(), kernel_times: Default::default(), submissions: Default::default(), submit_nanos: Default::default(), wait_nanos: Default::default(), params_chunks: Default::default(), kernel_timer: Default::default(), bind_groups: Default::default() })
     }
 
     /// The adapter in use.
@@ -309,6 +312,19 @@ impl Gpu {
         chunks[i].clone()
     }
 
+    /// The bind group of `resources` for `layout`, made or reused ([`bind_cache`]).
+    fn bind_group(&self, label: &str, layout: &wgpu::BindGroupLayout, resources: &[&dyn BindResource]) -> wgpu::BindGroup {
+        let submissions = self.submissions();
+        let mut cache = self.bind_groups.lock().unwrap_or_else(|p| p.into_inner());
+        cache.get(&self.device, label, layout, resources, submissions)
+    }
+
+    /// Bind groups made so far and held now by this context's cache ([`bind_cache`]).
+    pub fn bind_group_counts(&self) -> (u64, usize) {
+        let cache = self.bind_groups.lock().unwrap_or_else(|p| p.into_inner());
+        (cache.created(), cache.len())
+    }
+
     /// Starts recording a sequence of dispatches and copies.
     pub fn encoder(&self) -> Encoder<'_> {
         Encoder::new(self)
@@ -351,7 +367,8 @@ impl Gpu {
     /// The encoder's parameters are written into the arena in the same locked section
     /// (`gpu::kernel`, "The parameter arena").
     pub(crate) fn submit(&self, commands: wgpu::CommandBuffer, params: &kernel::ParamBytes) -> wgpu::SubmissionIndex {
-        self.submissions.fetch_add(1, Ordering::Relaxed);
+        let submissions = self.submissions.fetch_add(1, Ordering::Relaxed) + 1;
+        self.bind_groups.lock().unwrap_or_else(|p| p.into_inner()).sweep(submissions);
         let start = std::time::Instant::now();
         let _driver = driver_lock();
         for (chunk, bytes) in params.chunks.iter().zip(&params.bytes) {

@@ -241,6 +241,19 @@
 //!     with a single float atomic per corner saved 13 % of the backward (64-70 against
 //!     75-93 ms), but the 64-bit loop costs what the halved count saves.
 //!
+//!   A tenth (2026-11-27, eighth stop), against the spills: the kernels' statements
+//!   reordered so that fewer values are live across the MLPs. In the forward the
+//!   normal (the last use of the Jacobian rows and of `a1`) computed before the colour
+//!   MLP; in the backward each scratch row stored as soon as it is final and the
+//!   normal path run before the colour MLP, instead of all rows stored at the end.
+//!   Same results; `field_grid_throughput_small`, interleaved, CPU ms: forward 66-77
+//!   before, 70-90 after (three rounds); the backward's per-sample kernel 85.7 / 91.9
+//!   against 83.4 / 87.7 ms (`edgenerf speed --kernels --preset demo`, two rounds)
+//!   and 210-370 against 210-380 ms in eight rounds of the benchmark. Within the
+//!   noise at best: LLVM schedules the straight-line code by its own measure of
+//!   pressure, and llvmpipe runs an `if` as masked straight-line code, so a block
+//!   moved inside one still splits the code where it stands. Not kept.
+//!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
 //!   `grid.mlp` (`W1 [W][in_pad] | W2 [16][W] | C1 [W][32] | C2 [W][W] | C3 [4][W]`,
