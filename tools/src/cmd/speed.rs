@@ -76,6 +76,9 @@ struct CaseResult {
     /// recording the commands).
     submit_ms_per_step: f64,
     wait_ms_per_step: f64,
+    /// Bind groups created per plain step (`gpu::bind_cache`): none once the step's
+    /// buffers have settled, as every step binds the same ones.
+    bind_groups_per_step: f64,
     profiled_ms_per_step: f64,
     samples_per_step: f64,
     field_forward_samples_per_s: f64,
@@ -169,12 +172,14 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
     let (start, submitted, driver) = (Instant::now(), gpu.submissions(), gpu.driver_time());
+    let (bind_groups, _) = gpu.bind_group_counts();
     for i in 0..args.steps {
         step(&mut trainer, "plain", i + 1 == args.steps)?;
     }
     let plain_s = start.elapsed().as_secs_f64();
     let submissions = gpu.submissions() - submitted;
     let driver_end = gpu.driver_time();
+    let bind_groups = gpu.bind_group_counts().0 - bind_groups;
     let per_step_ms = |d: std::time::Duration| 1e3 * d.as_secs_f64() / args.steps.max(1) as f64;
     trainer.set_profiling(true);
     for _ in 0..args.steps {
@@ -219,6 +224,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         submissions_per_step: submissions as f64 / args.steps.max(1) as f64,
         submit_ms_per_step: per_step_ms(driver_end.submit - driver.submit),
         wait_ms_per_step: per_step_ms(driver_end.wait - driver.wait),
+        bind_groups_per_step: bind_groups as f64 / args.steps.max(1) as f64,
         profiled_ms_per_step: 1e3 * total_s / n,
         samples_per_step: times.field_samples as f64 / n,
         field_forward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldForward)),
@@ -246,10 +252,11 @@ fn print_case(r: &CaseResult) {
         r.steps_per_s, r.ms_per_step, r.submissions_per_step, r.profiled_ms_per_step
     );
     println!(
-        "  host per plain step: {:.2} ms submitting, {:.2} ms waiting for the GPU, {:.2} ms its own work",
+        "  host per plain step: {:.2} ms submitting, {:.2} ms waiting for the GPU, {:.2} ms its own work; {:.1} bind groups made",
         r.submit_ms_per_step,
         r.wait_ms_per_step,
-        (r.ms_per_step - r.submit_ms_per_step - r.wait_ms_per_step).max(0.0)
+        (r.ms_per_step - r.submit_ms_per_step - r.wait_ms_per_step).max(0.0),
+        r.bind_groups_per_step
     );
     println!("  {:<18} {:>9} {:>6}", "stage", "ms/step", "share");
     for s in &r.stages {
