@@ -287,7 +287,8 @@ fn validate_reflected(name: &str, float_atomics: bool, generated: &str)
 
 impl KernelSpec {
     /// Storage and uniform buffers of the bind layout against the device's per-stage
-    /// limits, and its parameter slots against the dynamic-offset limit (wgpu would otherwise panic on the layout with a validation error).
+    /// limits, and its parameter slots against the dynamic-offset limit (wgpu would
+    /// otherwise panic on the layout with a validation error).
     pub fn check_limits(&self, limits: &wgpu::Limits) -> Result<(), GpuError> {
         let storage = self.bindings.iter().filter(|b| !matches!(b, Binding::Uniform)).count() as u32;
         let uniform = self.bindings.len() as u32 - storage;
