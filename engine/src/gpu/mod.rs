@@ -319,10 +319,9 @@ impl Gpu {
         cache.get(&self.device, label, layout, resources, submissions)
     }
 
-    /// Bind groups made so far and held now by this context's cache ([`bind_cache`]).
-    pub fn bind_group_counts(&self) -> (u64, usize) {
-        let cache = self.bind_groups.lock().unwrap_or_else(|p| p.into_inner());
-        (cache.created(), cache.len())
+    /// Bind groups made so far by this context and its clones ([`bind_cache`]).
+    pub fn bind_groups_made(&self) -> u64 {
+        self.bind_groups.lock().unwrap_or_else(|p| p.into_inner()).created()
     }
 
     /// Starts recording a sequence of dispatches and copies.

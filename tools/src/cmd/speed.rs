@@ -172,15 +172,16 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
     let (start, submitted, driver) = (Instant::now(), gpu.submissions(), gpu.driver_time());
-    let (bind_groups, _) = gpu.bind_group_counts();
+    let bind_groups = gpu.bind_groups_made();
     for i in 0..args.steps {
         step(&mut trainer, "plain", i + 1 == args.steps)?;
     }
     let plain_s = start.elapsed().as_secs_f64();
     let submissions = gpu.submissions() - submitted;
     let driver_end = gpu.driver_time();
-    let bind_groups = gpu.bind_group_counts().0 - bind_groups;
-    let per_step_ms = |d: std::time::Duration| 1e3 * d.as_secs_f64() / args.steps.max(1) as f64;
+    let bind_groups = gpu.bind_groups_made() - bind_groups;
+    let per_step = |x: f64| x / args.steps.max(1) as f64;
+    let per_step_ms = |d: std::time::Duration| per_step(1e3 * d.as_secs_f64());
     trainer.set_profiling(true);
     for _ in 0..args.steps {
         step(&mut trainer, "profiled", true)?;
@@ -220,11 +221,11 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         rays_per_step: trainer.config().train.rays_per_batch,
         steps: args.steps,
         steps_per_s: args.steps as f64 / plain_s.max(1e-12),
-        ms_per_step: 1e3 * plain_s / args.steps.max(1) as f64,
-        submissions_per_step: submissions as f64 / args.steps.max(1) as f64,
+        ms_per_step: per_step(1e3 * plain_s),
+        submissions_per_step: per_step(submissions as f64),
         submit_ms_per_step: per_step_ms(driver_end.submit - driver.submit),
         wait_ms_per_step: per_step_ms(driver_end.wait - driver.wait),
-        bind_groups_per_step: bind_groups as f64 / args.steps.max(1) as f64,
+        bind_groups_per_step: per_step(bind_groups as f64),
         profiled_ms_per_step: 1e3 * total_s / n,
         samples_per_step: times.field_samples as f64 / n,
         field_forward_samples_per_s: per_s(times.field_samples, times.of(Stage::FieldForward)),

@@ -770,10 +770,6 @@ impl OuterProduct {
         Self { d, x, out4, in4, n_out, mask_d: false, to_m: false, off, stride }
     }
 
-    /// Threads of an `outer` launch for this product over `groups` sample groups.
-    fn threads(&self, groups: u32) -> u32 {
-        self.out4.div_ceil(2) * self.in4.div_ceil(2) * groups
-    }
 }
 
 struct Scratch {
@@ -1193,7 +1189,7 @@ impl Field for GridField {
                     first_thread: p.threads,
                     _pad: [0; 2],
                 };
-                p.threads += pr.threads(groups);
+                p.threads += slot.tiles_o * slot.tiles_i * groups;
             }
             let pb = enc.params(&p);
             enc.dispatch_threads(
