@@ -81,8 +81,13 @@ fn scatter_level(l: u32, p: vec3<f32>, dek: vec2<f32>, gk: vec2<f32>, dv: vec3<f
 }
 
 @compute @workgroup_size(WG_SIZE)
-fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn backward(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
     P = P_buffer;
+    load_shared_weights(li);
     // No early return (see grid_forward.wgsl): a thread past the chunk or the count
     // recomputes a valid sample with zero output gradients and writes nothing.
     let t = thread_index(gid, nwg);
@@ -126,11 +131,13 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     if (up.inside) {
         dh0 = d_out.w * density_act_d1(h0);
     }
+    // g = dh0/de, computed outside the branch as in grid_forward.wgsl; it only enters
+    // the gradients multiplied by dv, which is zero without the normal path.
     var g: Vec64;
+    density_dir(&a1, &g);
     var dg: Vec64;
     var dv = vec3<f32>(0.0);
     if (normal_grads) {
-        density_dir(&a1, &g);
         let s1 = density_act_d1(h0);
         let v = jac_t_vec(&g, &jac);
         let u = s1 * v;

@@ -11,8 +11,13 @@
 @group(0) @binding(4) var<storage, read_write> out_density: array<f32>;
 
 @compute @workgroup_size(WG_SIZE)
-fn density(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn density(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
     P = P_buffer;
+    load_shared_weights(li);
     // No early return (see grid_forward.wgsl): threads past P.n evaluate the last point
     // again and write nothing.
     let t = thread_index(gid, nwg);

@@ -17,8 +17,13 @@
 @group(0) @binding(6) var<storage, read_write> out_normal: array<vec4<f32>>;
 
 @compute @workgroup_size(WG_SIZE)
-fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn forward(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
     P = P_buffer;
+    load_shared_weights(li);
     // No early return: threads past the count compute the last sample again and write
     // nothing. Code after a divergent return runs under an execution mask on lavapipe,
     // where every weight read then becomes a per-lane gather instead of one broadcast
@@ -51,11 +56,14 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         out_rgb_density[i] = vec4<f32>(sigmoid3(o), sigma);
     }
 
+    // g = dh0/de at the top level, outside the branches: the generated product reads
+    // its weights from workgroup memory only there (codegen.rs, "Weights in workgroup
+    // memory"); without normals it is unused.
+    var g: Vec64;
+    density_dir(&a1, &g);
     if (normals) {
         var n = vec3<f32>(0.0);
         if (want_jac) {
-            var g: Vec64;
-            density_dir(&a1, &g);
             let u = density_act_d1(h0) * jac_t_vec(&g, &jac);
             let len = length(u);
             if (len > P.normal_eps) {

@@ -90,6 +90,8 @@ const MAX_WEIGHTS4: u32 = 2880u;
 // 1.5-1.7x faster than with storage reads). Weights never steer control flow, so
 // lavapipe does not recompile for their values (see gpu/kernel.rs, "Uniform buffers").
 @group(0) @binding(2) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS4>;
+// The per-sample kernels read most weights from a workgroup copy, `wsh`, declared and
+// filled by the generated `load_shared_weights` (engine/src/field/grid/codegen.rs).
 
 // A position mapped to the unit cube of the AABB; outside points are clamped for the
 // encoding and get zero density (and a zero normal).

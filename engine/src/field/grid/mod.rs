@@ -129,6 +129,28 @@
 //!   from the constant cache on NVIDIA; on lavapipe the field's forward and backward
 //!   are 1.5-1.7x faster than with storage reads (`field_grid_throughput`). The weights are the only uniform
 //!   buffer (see `gpu::kernel`, "Uniform buffers").
+//! * **Weights in workgroup memory** (2026-11-27, ninth stop). Each workgroup of the
+//!   three per-sample kernels first copies the first [`SHARED_WEIGHTS4`] vec4 of that
+//!   uniform block (16 KB, the workgroup memory every WebGPU device has: all 800 of the
+//!   presets' width-32 field, 1024 of the default field's 2880) to workgroup memory
+//!   (`wsh`, codegen's `load_shared_weights`, then a barrier), and the generated
+//!   products read them from there at constant indices. On lavapipe (Mesa 22.3) every
+//!   component read from a uniform or storage buffer is a bounds-checked branch, even
+//!   at a constant address, while a workgroup read at a constant address outside any
+//!   branch is one load and a broadcast: a chain of four 32x32 products on the 2-core
+//!   CPU took 5.0-6.2 cycles per multiply-add of an 8-lane subgroup with the weights in
+//!   a uniform or storage buffer, 1.35-1.47 with the copy, and 0.8-1.9 with the weights
+//!   as literal constants (a timing-only kernel). For the same reason every product
+//!   runs outside the kernels' branches: `g = dh0/de` is computed at the top level in
+//!   the forward and the backward, also when no normal is wanted (a branch is masked
+//!   straight-line code on lavapipe, so it cost its full price anyway). Measured with
+//!   `edgenerf speed --kernels` (three interleaved rounds, ms a step, before -> after):
+//!   the demo's forward 29.6-35.1 -> 18.1-19.7, its per-sample backward 49.0-55.3 ->
+//!   37.4-52.6; sparse-small's forward 37.8-40.4 -> 23.2-25.1, backward 69.0-77.0 ->
+//!   53.9-57.5; `outer` unchanged. Kept in the uniform block (products inside a branch,
+//!   as the normal path's were before) the copy gained the forward 0.75x and the
+//!   backward nothing. On a GPU this is tiny-cuda-nn's layout (weights staged in shared
+//!   memory); it is not yet timed on one.
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
 //!   backward products, the scatter, the scratch stores) is generated for the layout in
@@ -292,6 +314,10 @@ pub const MAX_WIDTH: u32 = 64;
 /// Floats of the uniform weight block of the kernels (`MAX_WEIGHTS4` in
 /// `grid_lib.wgsl`): every matrix of the largest configuration.
 pub const MAX_WEIGHT_FLOATS: usize = 4 * 2880;
+/// Weight vec4s the per-sample kernels copy to workgroup memory (`wsh` in
+/// `grid_lib.wgsl`): 16 KB, what every WebGPU device guarantees. The presets' fields
+/// (width 32: 800 vec4) fit whole; a wider field reads the rest from the uniform block.
+pub const SHARED_WEIGHTS4: u32 = 1024;
 /// Samples summed per thread by the weight-gradient kernel on a CPU adapter, where
 /// llvmpipe runs each atomic lane by lane and a thread's samples cost little more than
 /// its loads.
