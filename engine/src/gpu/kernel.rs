@@ -42,7 +42,11 @@
 //! storage. For the same reason a kernel whose parameters are read in its hot loops
 //! copies them into a `var<private>` as its first statement, before any branch, where a
 //! storage read at a uniform address is a single broadcast load
-//! (`field/grid_lib.wgsl`).
+//! (`field/grid_lib.wgsl`). Even there, every component read from a uniform or storage
+//! buffer is a bounds-checked branch; a `var<workgroup>` read at a constant address
+//! outside any branch is not, so the grid field's per-sample kernels copy their weights
+//! into workgroup memory first (the grid module's "Weights in workgroup memory": its
+//! MLP products ran about 4x faster per multiply-add).
 //!
 //! # The parameter arena
 //! A dispatch's parameters are not a buffer of their own: [`Encoder::params`] appends

@@ -276,6 +276,17 @@
 //!   pressure, and llvmpipe runs an `if` as masked straight-line code, so a block
 //!   moved inside one still splits the code where it stands. Not kept.
 //!
+//!   An eleventh (2026-11-27, ninth stop, before the weights moved to workgroup
+//!   memory): kernels with the normal path compiled out (the flag a constant `false`)
+//!   ran the same as the real ones, normals on or off (`field_grid_throughput_small`:
+//!   forward 0.94 against 0.94-1.03 M samples per CPU-second, backward first order
+//!   0.25 against 0.25-0.29). Not kept. The same benchmark with the encoding computed
+//!   from the position (no table reads, no corner loop) and the scatter cut to one
+//!   atomic per level (timing only) bounded what the table side costs: forward with
+//!   normals 1.04-1.23 against 0.98, backward with normals 0.44-0.46 against 0.27-0.29.
+//!   Removing the colour MLP's middle product from that forward made it 1.45x faster,
+//!   which led to the weights' workgroup copy above.
+//!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
 //!   `grid.mlp` (`W1 [W][in_pad] | W2 [16][W] | C1 [W][32] | C2 [W][W] | C3 [4][W]`,
