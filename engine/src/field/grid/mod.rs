@@ -147,9 +147,9 @@
 //!   `edgenerf speed --kernels` (three interleaved rounds, ms a step, before -> after):
 //!   the demo's forward 29.6-35.1 -> 18.1-19.7, its per-sample backward 49.0-55.3 ->
 //!   37.4-52.6; sparse-small's forward 37.8-40.4 -> 23.2-25.1, backward 69.0-77.0 ->
-//!   53.9-57.5; `outer` unchanged. Kept in the uniform block (products inside a branch,
-//!   as the normal path's were before) the copy gained the forward 0.75x and the
-//!   backward nothing. On a GPU this is tiny-cuda-nn's layout (weights staged in shared
+//!   53.9-57.5; `outer` unchanged. With the copy but the normal path's product still
+//!   inside its branch (reading the uniform block there), the forward took 0.75x its
+//!   time and the backward the same as before. On a GPU this is tiny-cuda-nn's layout (weights staged in shared
 //!   memory); it is not yet timed on one.
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
