@@ -133,7 +133,8 @@
 //!   three per-sample kernels first copies the first [`SHARED_WEIGHTS4`] vec4 of that
 //!   uniform block (16 KB, the workgroup memory every WebGPU device has: all 800 of the
 //!   presets' width-32 field, 1024 of the default field's 2880) to workgroup memory
-//!   (`wsh`, codegen's `load_shared_weights`, then a barrier), and the generated
+//!   (`wsh`, codegen's `load_shared_weights`, then a barrier; density queries copy only
+//!   W1 and W2, all they read), and the generated
 //!   products read them from there at constant indices. On lavapipe (Mesa 22.3) every
 //!   component read from a uniform or storage buffer is a bounds-checked branch, even
 //!   at a constant address, while a workgroup read at a constant address outside any
