@@ -34,7 +34,7 @@
 
 use std::fmt::Write;
 
-use super::{GridLayout, DENSITY_OUT, KEPT_REGION, SH_TERMS, SHARED_WEIGHTS4};
+use super::{GridLayout, DENSITY_OUT, KEPT_REGION, SH_TERMS};
 
 /// Which kernel the text is for: each gets the functions it calls (the backward's refer
 /// to its own bindings).
@@ -79,7 +79,7 @@ impl Dims {
             c1: (layout.c1 / 4) as u32,
             c2: (layout.c2 / 4) as u32,
             c3: (layout.c3 / 4) as u32,
-            weights: WeightReads { shared4: ((layout.mlp_len / 4) as u32).min(SHARED_WEIGHTS4) },
+            weights: WeightReads { shared4: layout.workgroup_weights4 },
         }
     }
 }
@@ -140,8 +140,13 @@ pub(super) fn source(layout: &GridLayout, kernel: GridKernel) -> String {
 }
 
 /// The workgroup copy of weight vec4s `0 .. shared4` and `load_shared_weights`, which
-/// every per-sample kernel calls first (the grid module's "Weights in workgroup memory").
+/// every per-sample kernel calls first (the grid module's "Weights in workgroup memory");
+/// without a copy (`shared4` 0) the function does nothing.
 fn shared_weights(s: &mut String, d: &Dims) {
+    if d.weights.shared4 == 0 {
+        s.push_str("fn load_shared_weights(li: u32) {}\n");
+        return;
+    }
     writeln!(
         s,
         "// The first {n} weight vec4 in workgroup memory, read by the products outside any branch.\n\
@@ -150,7 +155,7 @@ fn shared_weights(s: &mut String, d: &Dims) {
          fn load_shared_weights(li: u32) {{\n    \
          for (var k = li; k < {n}u; k += WG_SIZE) {{\n        wsh[k] = weights[k];\n    }}\n    \
          workgroupBarrier();\n}}",
-        n = d.weights.shared4.max(1)
+        n = d.weights.shared4
     )
     .unwrap();
 }
@@ -502,5 +507,9 @@ mod tests {
         let wide = source(&GridLayout::new(&GridConfig::default()).unwrap(), GridKernel::Forward);
         assert!(wide.contains("var<workgroup> wsh: array<vec4<f32>, 1024>"));
         assert!(wide.contains("wsh[1023u]") && !wide.contains("wsh[1024u]") && wide.contains("weights[1024u]"));
+        // Switched off: no workgroup memory, every weight from the uniform block.
+        let off = GridLayout::new(&GridConfig { workgroup_weights: false, ..cfg }).unwrap();
+        let plain = source(&off, GridKernel::Backward);
+        assert!(!plain.contains("wsh") && !plain.contains("workgroupBarrier") && plain.contains("weights[0u]"));
     }
 }

@@ -151,7 +151,8 @@
 //!   53.9-57.5; `outer` unchanged. With the copy but the normal path's product still
 //!   inside its branch (reading the uniform block there), the forward took 0.75x its
 //!   time and the backward the same as before. On a GPU this is tiny-cuda-nn's layout (weights staged in shared
-//!   memory); it is not yet timed on one.
+//!   memory); it is not yet timed on one ([`GridConfig::workgroup_weights`] off reads
+//!   every weight from the uniform block, for that comparison).
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
 //!   backward products, the scatter, the scratch stores) is generated for the layout in
@@ -410,6 +411,11 @@ pub struct GridConfig {
     /// table again ("The kept encoding" in the module doc). On by default; off
     /// recomputes it (the same gradients, in float-atomic order).
     pub keep_encoding: bool,
+    /// The per-sample kernels copy the first 16 KB of the MLP weights to workgroup
+    /// memory and read them there ("Weights in workgroup memory" in the module doc). On
+    /// by default; off, every weight is read from the uniform block (the same results),
+    /// for timing the copy on an adapter.
+    pub workgroup_weights: bool,
     /// Samples each thread of the weight-gradient kernel (`outer`) sums before its
     /// atomic adds: 0 (the default) picks by adapter, [`SAMPLES_PER_THREAD_CPU`] on a
     /// CPU adapter and [`SAMPLES_PER_THREAD_GPU`] on a GPU. Fewer means more threads
@@ -440,6 +446,7 @@ impl Default for GridConfig {
             density_bias: 0.0,
             backward_chunk: 1 << 17,
             keep_encoding: true,
+            workgroup_weights: true,
             outer_samples_per_thread: 0,
             table_lr_scale: 1.0,
             mlp_lr_scale: 1.0,
@@ -594,6 +601,8 @@ pub struct GridLayout {
     pub c2: usize,
     pub c3: usize,
     pub mlp_len: usize,
+    /// Weight vec4s the per-sample kernels copy to workgroup memory (0: none).
+    pub workgroup_weights4: u32,
 }
 
 impl GridLayout {
@@ -627,7 +636,8 @@ impl GridLayout {
         let c3 = c2 + w * w;
         let mlp_len = c3 + 4 * w;
         debug_assert!(mlp_len <= MAX_WEIGHT_FLOATS, "validated widths and levels fit the uniform weight block");
-        Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len })
+        let workgroup_weights4 = if cfg.workgroup_weights { ((mlp_len / 4) as u32).min(SHARED_WEIGHTS4) } else { 0 };
+        Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len, workgroup_weights4 })
     }
 
     /// The MLP matrices as (export name, float offset, rows, cols, row stride).

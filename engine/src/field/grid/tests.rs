@@ -753,6 +753,32 @@ fn field_grid_backward_from_the_kept_encoding_with_band_limited_normals() {
 }
 
 #[test]
+fn field_grid_weights_from_the_uniform_block_match_the_workgroup_copy() {
+    // `workgroup_weights` off reads every weight from the uniform block: the same
+    // outputs bit for bit (same values, same order of operations) and gradients that
+    // match the CPU reference.
+    let n = 96;
+    // Width 16 (as the chunk test below) keeps the extra pipelines quick to compile.
+    let cfg = GridConfig { hidden_width: 16, ..small_config() };
+    let mut on = setup(&cfg, n, 128, 41, false);
+    let mut off = setup(&GridConfig { workgroup_weights: false, ..cfg }, n, 128, 41, false);
+    assert!(on.field.layout().workgroup_weights4 > 0 && off.field.layout().workgroup_weights4 == 0);
+    let outputs = |s: &mut Setup| {
+        let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+        s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+        let (density, rgb, normal) = out.read(&s.gpu).unwrap();
+        (density, rgb, normal)
+    };
+    assert_eq!(outputs(&mut on), outputs(&mut off));
+    let w = LossWeights::random(n, 42, 1.0, 1.0, 1.0);
+    off.field.zero_grads(&off.gpu);
+    off.field.backward(&off.gpu, &off.batch, &w.upload(&off.gpu, 128), None, true).unwrap();
+    let cpu = w.cpu_grads(&off.field.reference(&off.gpu).unwrap(), &off.samples, true);
+    assert_close("table", &to_f64(&off.field.table_grad.read(&off.gpu).unwrap()), &cpu.table, 3e-4, 3e-3);
+    assert_close("mlp", &to_f64(&off.field.mlp_grad.read(&off.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
+}
+
+#[test]
 fn field_grid_backward_chunks_and_accumulation() {
     // A 64-sample chunk over 200 samples (capacity 256, count 200) must give the same
     // gradients as one chunk; two backward calls add up.
