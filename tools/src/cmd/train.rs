@@ -312,7 +312,7 @@ mod interrupt {
 
 /// The progress bar's message while a run's first step runs. The first step builds
 /// every kernel the run uses: lavapipe compiles each with LLVM at its first dispatch,
-/// which takes minutes for a field it has not seen (about 15 at the default width-64,
+/// which takes minutes for a field it has not seen (about 5 at the default width-64,
 /// 16-level grid on a 2-core CPU; README, "The first run of a field configuration
 /// compiles for minutes on a CPU"). Mesa keeps the result in its shader cache, so only
 /// the first run of a field configuration on a machine waits.
