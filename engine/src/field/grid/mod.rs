@@ -134,8 +134,8 @@
 //!   uniform block (16 KB, the workgroup memory every WebGPU device has: all 800 of the
 //!   presets' width-32 field, 1024 of the default field's 2880) to workgroup memory
 //!   (`wsh`, codegen's `load_shared_weights`, then a barrier; density queries copy only
-//!   W1 and W2, all they read), and the generated
-//!   products read them from there at constant indices. On lavapipe (Mesa 22.3) every
+//!   W1 and W2's first row, all they read), and the generated products read them from
+//!   there at constant indices. On lavapipe (Mesa 22.3) every
 //!   component read from a uniform or storage buffer is a bounds-checked branch, even
 //!   at a constant address, while a workgroup read at a constant address outside any
 //!   branch is one load and a broadcast: a chain of four 32x32 products on the 2-core
@@ -150,9 +150,10 @@
 //!   37.4-52.6; sparse-small's forward 37.8-40.4 -> 23.2-25.1, backward 69.0-77.0 ->
 //!   53.9-57.5; `outer` unchanged. With the copy but the normal path's product still
 //!   inside its branch (reading the uniform block there), the forward took 0.75x its
-//!   time and the backward the same as before. On a GPU this is tiny-cuda-nn's layout (weights staged in shared
-//!   memory); it is not yet timed on one ([`GridConfig::workgroup_weights`] off reads
-//!   every weight from the uniform block, for that comparison).
+//!   time and the backward the same as before. On a GPU this is tiny-cuda-nn's layout
+//!   (weights staged in shared memory); it is not yet timed on one
+//!   ([`GridConfig::workgroup_weights`] off reads every weight from the uniform block,
+//!   for that comparison).
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
 //!   backward products, the scatter, the scratch stores) is generated for the layout in
@@ -327,8 +328,8 @@ pub const MAX_WIDTH: u32 = 64;
 /// Floats of the uniform weight block of the kernels (`MAX_WEIGHTS4` in
 /// `grid_lib.wgsl`): every matrix of the largest configuration.
 pub const MAX_WEIGHT_FLOATS: usize = 4 * 2880;
-/// Weight vec4s the per-sample kernels copy to workgroup memory (`wsh` in
-/// `grid_lib.wgsl`): 16 KB, what every WebGPU device guarantees. The presets' fields
+/// Weight vec4s the per-sample kernels copy to workgroup memory (`wsh`, declared by
+/// the generated code, [`codegen`]): 16 KB, what every WebGPU device guarantees. The presets' fields
 /// (width 32: 800 vec4) fit whole; a wider field reads the rest from the uniform block.
 pub const SHARED_WEIGHTS4: u32 = 1024;
 /// Samples summed per thread by the weight-gradient kernel on a CPU adapter, where

@@ -766,8 +766,7 @@ fn field_grid_weights_from_the_uniform_block_match_the_workgroup_copy() {
     let outputs = |s: &mut Setup| {
         let out = FieldOutputs::new(&s.gpu, 128).unwrap();
         s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
-        let (density, rgb, normal) = out.read(&s.gpu).unwrap();
-        (density, rgb, normal)
+        out.read(&s.gpu).unwrap()
     };
     assert_eq!(outputs(&mut on), outputs(&mut off));
     let w = LossWeights::random(n, 42, 1.0, 1.0, 1.0);
