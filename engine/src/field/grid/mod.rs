@@ -154,6 +154,18 @@
 //!   (weights staged in shared memory); it is not yet timed on one
 //!   ([`GridConfig::workgroup_weights`] off reads every weight from the uniform block,
 //!   for that comparison).
+//!   On a CPU adapter whose workgroup memory allows it (lavapipe: 32 KB) the forward
+//!   kernels (the forward, the training forward, density queries) copy
+//!   [`SHARED_WEIGHTS4_CPU_FORWARD`] vec4 instead (2026-11-27, tenth stop;
+//!   [`WorkgroupWeights4`], `forward_copy4`), so a width-64 field's products read all
+//!   but its last 64-320 weight vec4 from the copy: at synthetic-small's field (12
+//!   levels, width 64) the training forward took 216-285 against 302-372 ms a step
+//!   (`edgenerf speed --kernels`, three interleaved rounds). The backward keeps
+//!   [`SHARED_WEIGHTS4`]: with the larger copy the default field's backward with
+//!   normals took 1153-1337 against 907-1617 ms of CPU (median 1270 against 957; five
+//!   interleaved rounds of `field_grid_throughput`), while its forward with normals
+//!   took 280-443 against 397-567 ms, faster in every round. GPUs keep 16 KB for every
+//!   kernel (untimed there).
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
 //!   backward products, the scatter, the scratch stores) is generated for the layout in
@@ -290,6 +302,21 @@
 //!   Removing the colour MLP's middle product from that forward made it 1.45x faster,
 //!   which led to the weights' workgroup copy above.
 //!
+//!   A twelfth (2026-11-27, tenth stop) split the presets' backward after that copy
+//!   (`field_grid_throughput_small`, backward with normals, timing-only variants, six
+//!   interleaved rounds, each variant's fastest round in CPU ms): the real kernels 212;
+//!   without the weight-gradient launch (`outer`) 175; without the per-sample rows'
+//!   stores 165; without the hash-feature scatter 155. So the scatter is about 27 %,
+//!   the rows' stores 22 % and `outer` (mostly its loads of those rows) 17 %: two
+//!   thirds of the backward are per-invocation memory accesses, which this Mesa runs
+//!   lane by lane, and the arithmetic left is about 70 ms. #14's 5x needs about 120 ms
+//!   here; dropping the rows and `outer` altogether would leave about 128. The copy of
+//!   the weights costs little (a kernel copying them twice ran the same, five rounds),
+//!   and so does wgpu's zero-initialisation of workgroup memory (off: within the
+//!   noise). A trap for timing-only variants: a copy of part of the weights leaves the
+//!   rest zero, which zeroes the deltas and so skips the scatter's atomics (zero
+//!   coefficients are not added); such a variant ran 1.4x faster for that alone.
+//!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
 //!   `grid.mlp` (`W1 [W][in_pad] | W2 [16][W] | C1 [W][32] | C2 [W][W] | C3 [4][W]`,
@@ -332,6 +359,14 @@ pub const MAX_WEIGHT_FLOATS: usize = 4 * 2880;
 /// the generated code, [`codegen`]): 16 KB, what every WebGPU device guarantees. The presets' fields
 /// (width 32: 800 vec4) fit whole; a wider field reads the rest from the uniform block.
 pub const SHARED_WEIGHTS4: u32 = 1024;
+/// Weight vec4s the forward kernels (the forward, the training forward and density
+/// queries) copy on a CPU adapter whose limit allows it: 32 KB, lavapipe's limit, which
+/// holds 2048 of a width-64 field's 2240 (synthetic-small) or 2368 (the default). On
+/// lavapipe that made the training forward of synthetic-small 1.2-1.4x faster; the
+/// backward stays at [`SHARED_WEIGHTS4`], where the larger copy measured no faster
+/// (synthetic-small) or slower (the default field). GPUs keep [`SHARED_WEIGHTS4`]
+/// (untimed there). See "Weights in workgroup memory" in the module doc.
+pub const SHARED_WEIGHTS4_CPU_FORWARD: u32 = 2048;
 /// Samples summed per thread by the weight-gradient kernel on a CPU adapter, where
 /// llvmpipe runs each atomic lane by lane and a thread's samples cost little more than
 /// its loads.
@@ -413,9 +448,10 @@ pub struct GridConfig {
     /// recomputes it (the same gradients, in float-atomic order).
     pub keep_encoding: bool,
     /// The per-sample kernels copy the first 16 KB of the MLP weights to workgroup
-    /// memory and read them there ("Weights in workgroup memory" in the module doc). On
-    /// by default; off, every weight is read from the uniform block (the same results),
-    /// for timing the copy on an adapter.
+    /// memory (the forward kernels 32 KB on a CPU adapter that allows it) and read them
+    /// there ("Weights in workgroup memory" in the module doc). On by default; off,
+    /// every weight is read from the uniform block (the same results), for timing the
+    /// copy on an adapter.
     pub workgroup_weights: bool,
     /// Samples each thread of the weight-gradient kernel (`outer`) sums before its
     /// atomic adds: 0 (the default) picks by adapter, [`SAMPLES_PER_THREAD_CPU`] on a
@@ -602,8 +638,18 @@ pub struct GridLayout {
     pub c2: usize,
     pub c3: usize,
     pub mlp_len: usize,
-    /// Weight vec4s the per-sample kernels copy to workgroup memory (0: none).
-    pub workgroup_weights4: u32,
+    /// Weight vec4s the per-sample kernels copy to workgroup memory.
+    pub workgroup_weights4: WorkgroupWeights4,
+}
+
+/// Weight vec4s the per-sample kernels copy to workgroup memory (0: none, every weight
+/// read from the uniform block): the forward kernels' copy and the backward's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WorkgroupWeights4 {
+    /// The forward, the training forward and density queries (these copy at most the
+    /// prefix they read).
+    pub forward: u32,
+    pub backward: u32,
 }
 
 impl GridLayout {
@@ -637,11 +683,21 @@ impl GridLayout {
         let c3 = c2 + w * w;
         let mlp_len = c3 + 4 * w;
         debug_assert!(mlp_len <= MAX_WEIGHT_FLOATS, "validated widths and levels fit the uniform weight block");
-        let workgroup_weights4 = if cfg.workgroup_weights { ((mlp_len / 4) as u32).min(SHARED_WEIGHTS4) } else { 0 };
+        let copy4 = if cfg.workgroup_weights { ((mlp_len / 4) as u32).min(SHARED_WEIGHTS4) } else { 0 };
+        let workgroup_weights4 = WorkgroupWeights4 { forward: copy4, backward: copy4 };
         Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len, workgroup_weights4 })
     }
 
     /// The MLP matrices as (export name, float offset, rows, cols, row stride).
+    /// The layout with the forward kernels' workgroup copy raised to `max4` weight vec4s
+    /// (at most the whole block; unchanged when the copy is off).
+    pub fn with_forward_copy4(mut self, max4: u32) -> Self {
+        if self.workgroup_weights4.forward > 0 {
+            self.workgroup_weights4.forward = ((self.mlp_len / 4) as u32).min(max4);
+        }
+        self
+    }
+
     pub fn matrices(&self) -> [(&'static str, usize, usize, usize, usize); 5] {
         let (w, d, cin) = (self.width, DENSITY_OUT as usize, (DENSITY_OUT + SH_TERMS) as usize);
         [
@@ -892,11 +948,23 @@ pub fn initial_params(config: &GridConfig, layout: &GridLayout) -> (Vec<f32>, Ve
     (table, mlp)
 }
 
+/// The forward kernels' workgroup copy on `gpu`, in weight vec4s:
+/// [`SHARED_WEIGHTS4_CPU_FORWARD`] on a CPU adapter whose workgroup memory holds it,
+/// else [`SHARED_WEIGHTS4`].
+fn forward_copy4(gpu: &Gpu) -> u32 {
+    if gpu.adapter().is_cpu() {
+        let fits = gpu.limits().max_compute_workgroup_storage_size / 16;
+        SHARED_WEIGHTS4_CPU_FORWARD.min(fits).max(SHARED_WEIGHTS4)
+    } else {
+        SHARED_WEIGHTS4
+    }
+}
+
 impl GridField {
     /// A field over the box `aabb` (`[min, max]`, world or NDC units) with the
     /// deterministic initialisation of `config.seed`.
     pub fn new(gpu: &Gpu, config: &GridConfig, aabb: [Vec3; 2]) -> Result<Self, FieldError> {
-        let layout = GridLayout::new(config)?;
+        let layout = GridLayout::new(config)?.with_forward_copy4(forward_copy4(gpu));
         if !(aabb[0].is_finite() && aabb[1].is_finite() && aabb[0].cmplt(aabb[1]).all()) {
             return Err(FieldError::Config(format!("aabb {aabb:?} must be finite with min < max")));
         }

@@ -762,7 +762,9 @@ fn field_grid_weights_from_the_uniform_block_match_the_workgroup_copy() {
     let cfg = GridConfig { hidden_width: 16, ..small_config() };
     let mut on = setup(&cfg, n, 128, 41, false);
     let mut off = setup(&GridConfig { workgroup_weights: false, ..cfg }, n, 128, 41, false);
-    assert!(on.field.layout().workgroup_weights4 > 0 && off.field.layout().workgroup_weights4 == 0);
+    let (copy_on, copy_off) = (on.field.layout().workgroup_weights4, off.field.layout().workgroup_weights4);
+    assert!(copy_on.forward > 0 && copy_on.backward > 0, "{copy_on:?}");
+    assert_eq!(copy_off, WorkgroupWeights4 { forward: 0, backward: 0 });
     let outputs = |s: &mut Setup| {
         let out = FieldOutputs::new(&s.gpu, 128).unwrap();
         s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
@@ -775,6 +777,42 @@ fn field_grid_weights_from_the_uniform_block_match_the_workgroup_copy() {
     let cpu = w.cpu_grads(&off.field.reference(&off.gpu).unwrap(), &off.samples, true);
     assert_close("table", &to_f64(&off.field.table_grad.read(&off.gpu).unwrap()), &cpu.table, 3e-4, 3e-3);
     assert_close("mlp", &to_f64(&off.field.mlp_grad.read(&off.gpu).unwrap()), &cpu.mlp, 3e-4, 3e-3);
+}
+
+#[test]
+fn field_grid_wider_forward_copy_matches_reference() {
+    // A width-64 field at 8 levels has 2112 weight vec4, more than the 16 KB copy. On a
+    // CPU adapter with 32 KB of workgroup memory (lavapipe) the forward kernels copy
+    // 2048 of them and read the rest from the uniform block, the backward copies 1024
+    // (`forward_copy4`). The forward and density queries match the CPU reference, so
+    // every weight is read from where it is (a weight read from the wrong place, or
+    // from an uncopied slot, would be off by far more than rounding).
+    let n = 96;
+    let cfg = GridConfig { hidden_width: 64, n_levels: 8, ..small_config() };
+    let mut s = setup(&cfg, n, 128, 43, false);
+    let layout = s.field.layout();
+    assert_eq!(layout.mlp_len / 4, 2112);
+    let copy = layout.workgroup_weights4;
+    assert_eq!(copy, WorkgroupWeights4 { forward: forward_copy4(&s.gpu), backward: SHARED_WEIGHTS4 });
+    if s.gpu.adapter().is_cpu() && s.gpu.limits().max_compute_workgroup_storage_size >= 32 << 10 {
+        assert_eq!(copy.forward, SHARED_WEIGHTS4_CPU_FORWARD);
+    }
+    let out = FieldOutputs::new(&s.gpu, 128).unwrap();
+    s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
+    let (density, rgb, _) = out.read(&s.gpu).unwrap();
+    let pts: Vec<[f32; 4]> = s.samples.iter().map(|p| [p.pos[0], p.pos[1], p.pos[2], 0.0]).collect();
+    let pts = GpuBuffer::from_slice(&s.gpu, "points", &pts).unwrap();
+    let queried = GpuBuffer::<f32>::zeros(&s.gpu, "densities", n).unwrap();
+    s.field.density(&s.gpu, &pts, n as u32, &queried).unwrap();
+    let queried = queried.read(&s.gpu).unwrap();
+    let m = s.field.reference(&s.gpu).unwrap();
+    for (i, smp) in s.samples.iter().enumerate() {
+        let t = m.forward(pos(smp), dir(smp));
+        assert_close(&format!("rgb[{i}]"), &to_f64(&rgb[i][..3]), &t.rgb, 1e-4, 1e-4);
+        assert_close(&format!("sigma[{i}]"), &[density[i] as f64], &[t.sigma], 1e-4, 1e-4);
+        assert_close(&format!("queried sigma[{i}]"), &[queried[i] as f64], &[t.sigma], 1e-4, 1e-4);
+    }
+    assert!(density.iter().any(|&d| d > 0.0), "no sample inside the box: the comparison says little");
 }
 
 #[test]
