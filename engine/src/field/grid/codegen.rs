@@ -6,8 +6,9 @@
 //! the workgroup's copy of the weights (`load_shared_weights`, the kernels' first
 //! call), the encoding (levels unrolled), the MLP products (rows and columns unrolled,
 //! weights read at constant indices from that copy, `wsh`, or past it from the uniform
-//! block; the copy's size is the layout's [`WorkgroupWeights4`] for the kernel), the analytic normal's `g` and `J^T g`, the backward products, the
-//! hash-feature scatter (levels unrolled) and the scratch stores. The hand-written
+//! block; the copy's size is the layout's [`WorkgroupWeights4`] for the kernel), the
+//! analytic normal's `g` and `J^T g`, the backward products, the hash-feature scatter
+//! (levels unrolled) and the scratch stores. The hand-written
 //! kernels call these functions by name and keep the control flow, and call every
 //! function holding a product outside their branches (see the grid module's
 //! "Weights in workgroup memory" for why); `grid_lib.wgsl` keeps the per-level and
