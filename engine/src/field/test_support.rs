@@ -143,6 +143,19 @@ pub(crate) fn check_grid_grads_against_fd(
     }
 }
 
+/// The samples' positions as density-query points (`Field::density`'s input).
+pub(crate) fn sample_points(gpu: &Gpu, samples: &[GpuSample]) -> GpuBuffer<[f32; 4]> {
+    let pts: Vec<[f32; 4]> = samples.iter().map(|s| [s.pos[0], s.pos[1], s.pos[2], 0.0]).collect();
+    GpuBuffer::from_slice(gpu, "points", &pts).unwrap()
+}
+
+/// `field`'s density queries at the samples' positions.
+pub(crate) fn query_densities(gpu: &Gpu, field: &dyn Field, samples: &[GpuSample]) -> Vec<f32> {
+    let out = GpuBuffer::<f32>::zeros(gpu, "densities", samples.len()).unwrap();
+    field.density(gpu, &sample_points(gpu, samples), samples.len() as u32, &out).unwrap();
+    out.read(gpu).unwrap()
+}
+
 /// Prints forward / backward / density-query throughput of `field` on `n` random
 /// samples in `aabb`: wall time, and the process's CPU time (lavapipe runs in-process),
 /// which is steadier than wall time when other jobs share the cores.
@@ -183,8 +196,7 @@ pub(crate) fn measure_throughput(gpu: &Gpu, field: &mut dyn Field, aabb: [Vec3; 
     time("forward (normals)", &mut || field.forward(gpu, &batch, &out, true).unwrap());
     time("backward (first order)", &mut || field.backward(gpu, &batch, &grads, None, false).unwrap());
     time("backward (with normals)", &mut || field.backward(gpu, &batch, &grads, None, true).unwrap());
-    let pts: Vec<[f32; 4]> = samples.iter().map(|s| [s.pos[0], s.pos[1], s.pos[2], 0.0]).collect();
-    let pts = GpuBuffer::from_slice(gpu, "points", &pts).unwrap();
+    let pts = sample_points(gpu, &samples);
     let dens = GpuBuffer::<f32>::zeros(gpu, "densities", n).unwrap();
     time("density queries", &mut || field.density(gpu, &pts, n as u32, &dens).unwrap());
 }

@@ -694,7 +694,6 @@ impl GridLayout {
         Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len, workgroup_weights4 })
     }
 
-    /// The MLP matrices as (export name, float offset, rows, cols, row stride).
     /// The layout with the forward kernels' workgroup copy raised to `max4` weight vec4s
     /// (at most the whole block; unchanged when the copy is off).
     pub fn with_forward_copy4(mut self, max4: u32) -> Self {
@@ -704,6 +703,7 @@ impl GridLayout {
         self
     }
 
+    /// The MLP matrices as (export name, float offset, rows, cols, row stride).
     pub fn matrices(&self) -> [(&'static str, usize, usize, usize, usize); 5] {
         let (w, d, cin) = (self.width, DENSITY_OUT as usize, (DENSITY_OUT + SH_TERMS) as usize);
         [

@@ -580,11 +580,7 @@ fn field_grid_density_queries_match_forward_and_softplus() {
         let mut s = setup(&cfg, n, 128, 61, false);
         let out = FieldOutputs::new(&s.gpu, 128).unwrap();
         s.field.forward(&s.gpu, &s.batch, &out, false).unwrap();
-        let points: Vec<[f32; 4]> = s.samples.iter().map(|p| [p.pos[0], p.pos[1], p.pos[2], 0.0]).collect();
-        let pbuf = GpuBuffer::from_slice(&s.gpu, "points", &points).unwrap();
-        let dbuf = GpuBuffer::<f32>::zeros(&s.gpu, "densities", n).unwrap();
-        s.field.density(&s.gpu, &pbuf, n as u32, &dbuf).unwrap();
-        let (q, f) = (dbuf.read(&s.gpu).unwrap(), out.read(&s.gpu).unwrap().0);
+        let (q, f) = (query_densities(&s.gpu, &s.field, &s.samples), out.read(&s.gpu).unwrap().0);
         let m = s.field.reference(&s.gpu).unwrap();
         for i in 0..n {
             assert_eq!(q[i], f[i], "{act:?}: query vs forward density at {i}");
@@ -800,11 +796,7 @@ fn field_grid_wider_forward_copy_matches_reference() {
     let out = FieldOutputs::new(&s.gpu, 128).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
     let (density, rgb, _) = out.read(&s.gpu).unwrap();
-    let pts: Vec<[f32; 4]> = s.samples.iter().map(|p| [p.pos[0], p.pos[1], p.pos[2], 0.0]).collect();
-    let pts = GpuBuffer::from_slice(&s.gpu, "points", &pts).unwrap();
-    let queried = GpuBuffer::<f32>::zeros(&s.gpu, "densities", n).unwrap();
-    s.field.density(&s.gpu, &pts, n as u32, &queried).unwrap();
-    let queried = queried.read(&s.gpu).unwrap();
+    let queried = query_densities(&s.gpu, &s.field, &s.samples);
     let m = s.field.reference(&s.gpu).unwrap();
     for (i, smp) in s.samples.iter().enumerate() {
         let t = m.forward(pos(smp), dir(smp));

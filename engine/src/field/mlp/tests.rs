@@ -247,12 +247,8 @@ fn field_mlp_normals_match_finite_differences_of_density() {
 fn field_mlp_density_queries_match_reference() {
     let s = setup(&tiny(PositionEncoding::Integrated), 100, 128, 31);
     let m = s.field.reference(&s.gpu).unwrap();
-    let pts: Vec<[f32; 4]> = s.samples.iter().map(|p| [p.pos[0], p.pos[1], p.pos[2], 0.0]).collect();
-    let points = GpuBuffer::from_slice(&s.gpu, "points", &pts).unwrap();
-    let out = GpuBuffer::<f32>::zeros(&s.gpu, "density", pts.len()).unwrap();
-    s.field.density(&s.gpu, &points, pts.len() as u32, &out).unwrap();
     let want: Vec<f64> = s.samples.iter().map(|p| m.density_at(p.pos.map(f64::from))).collect();
-    assert_close("density queries", &to_f64(&out.read(&s.gpu).unwrap()), &want, 1e-5, 1e-4);
+    assert_close("density queries", &to_f64(&query_densities(&s.gpu, &s.field, &s.samples)), &want, 1e-5, 1e-4);
 }
 
 #[test]
