@@ -984,6 +984,99 @@ pub(crate) mod tests {
         }
     }
 
+    /// What writing a vec4 at a per-invocation address costs on this adapter, outside
+    /// any branch as the grid backward's rows are written, into a storage buffer, a
+    /// storage texture and workgroup memory (`kernels/gpu/store_paths.wgsl`, 16 rows per
+    /// invocation). Run with `cargo test --release -p edgenerf-engine --lib store_paths
+    /// -- --ignored --nocapture`. Prints ns per stored vec4 (less the cost of the
+    /// values, `to_nothing`) and checks the storage path's rows.
+    ///
+    /// Measured 2026-11-28 on the 2-core CPU with lavapipe: see the grid module's
+    /// thirteenth finding (`field/grid/mod.rs`): a texel store costs more than a storage
+    /// store, so a texture cannot carry the backward's rows to `outer` any cheaper.
+    #[test]
+    #[ignore]
+    fn store_paths_on_this_adapter() {
+        use crate::gpu::test_gpu;
+        const ROWS: u32 = 16;
+        const TEXTURE_WIDTH: u32 = 2048;
+        let gpu = test_gpu(false);
+        let device = &gpu.device;
+        let threads = 262144u32;
+        let rows = crate::gpu::GpuBuffer::<[f32; 4]>::zeros(&gpu, "rows", (threads * ROWS) as usize).unwrap();
+        let sink = crate::gpu::GpuBuffer::<[f32; 4]>::zeros(&gpu, "sink", 1).unwrap();
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: None,
+            size: wgpu::Extent3d { width: TEXTURE_WIDTH, height: threads * ROWS / TEXTURE_WIDTH, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::STORAGE_BINDING,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&Default::default());
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("gpu/store_paths.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(kernel_source("gpu/store_paths.wgsl").unwrap())),
+        });
+        let mut ns = std::collections::BTreeMap::new();
+        for round in 0..3 {
+            for path in ["to_nothing", "to_storage", "to_texture", "to_workgroup"] {
+                let pipeline = {
+                    let _driver = crate::gpu::driver_lock();
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(path),
+                        layout: None,
+                        module: &module,
+                        entry_point: Some(path),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+                };
+                // The automatic layout holds only the bindings the entry point uses.
+                let mut entries = vec![];
+                match path {
+                    "to_storage" => entries.push(wgpu::BindGroupEntry { binding: 0, resource: rows.buffer.as_entire_binding() }),
+                    "to_texture" => entries.push(wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&view) }),
+                    _ => entries.push(wgpu::BindGroupEntry { binding: 2, resource: sink.buffer.as_entire_binding() }),
+                }
+                let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: None,
+                    layout: &pipeline.get_bind_group_layout(0),
+                    entries: &entries,
+                });
+                let run = || {
+                    let mut enc = device.create_command_encoder(&Default::default());
+                    {
+                        let mut pass = enc.begin_compute_pass(&Default::default());
+                        pass.set_pipeline(&pipeline);
+                        pass.set_bind_group(0, &bind_group, &[]);
+                        pass.dispatch_workgroups(threads / 64, 1, 1);
+                    }
+                    let started = std::time::Instant::now();
+                    gpu.submit(enc.finish(), &Default::default());
+                    gpu.wait().unwrap();
+                    started.elapsed().as_secs_f64()
+                };
+                run();
+                let best = (0..5).map(|_| run()).fold(f64::INFINITY, f64::min);
+                let per_store = best * 1e9 / (threads * ROWS) as f64;
+                ns.entry(path).or_insert_with(Vec::new).push(per_store);
+                println!("round {round} {path}: {:.2} ms, {per_store:.2} ns per vec4", best * 1e3);
+            }
+        }
+        let best = |path: &str| ns[path].iter().copied().fold(f64::INFINITY, f64::min);
+        for path in ["to_storage", "to_texture", "to_workgroup"] {
+            println!("{path}: {:.2} ns per stored vec4 beyond the values' cost (fastest round)", best(path) - best("to_nothing"));
+        }
+        let written = rows.read(&gpu).unwrap();
+        for (t, j) in [(0u32, 0u32), (1, 5), (threads - 1, ROWS - 1)] {
+            let (x, jf) = (t as f32, j as f32);
+            assert_eq!(written[(t * ROWS + j) as usize], [x + jf, x * 0.5 - jf, x * 0.25, jf * x], "row {j} of invocation {t}");
+        }
+    }
+
     #[test]
     fn every_kernel_validates_on_both_atomic_paths() {
         assert!(!KERNEL_SOURCES.is_empty(), "no kernels embedded");

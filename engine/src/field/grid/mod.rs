@@ -163,9 +163,10 @@
 //!   (`edgenerf speed --kernels`, three interleaved rounds). The backward keeps
 //!   [`SHARED_WEIGHTS4`]: with the larger copy the default field's backward with
 //!   normals took 1153-1337 against 907-1617 ms of CPU (median 1270 against 957; five
-//!   interleaved rounds of `field_grid_throughput`), while its forward with normals
-//!   took 280-443 against 397-567 ms, faster in every round. GPUs keep 16 KB for every
-//!   kernel (untimed there).
+//!   interleaved rounds of `field_grid_throughput`; five more rounds on 2026-11-28
+//!   found the two the same, 860-1027 against 870-963: thirteenth finding below),
+//!   while its forward with normals took 280-443 against 397-567 ms, faster in every
+//!   round. GPUs keep 16 KB for every kernel (untimed there).
 //! * **Specialized per configuration** ([`codegen`]): the vector code of the three
 //!   per-sample kernels (encode, the MLP products, the normal's `g` and `J^T g`, the
 //!   backward products, the scatter, the scratch stores) is generated for the layout in
@@ -322,6 +323,28 @@
 //!   (`field_grid_throughput`, five interleaved rounds, after the larger forward copy).
 //!   The table's cache misses do not set that forward either, so a half-precision
 //!   table would not bring it near 5x on lavapipe.
+//!
+//!   A thirteenth (2026-11-28, eleventh stop): could the rows reach `outer` by a
+//!   cheaper path? A texture would make `outer`'s loads 1.2-1.5x faster (above), but
+//!   the rows would then be written as texels. The ignored benchmark
+//!   `store_paths_on_this_adapter` (`gpu/kernel.rs`, `kernels/gpu/store_paths.wgsl`)
+//!   writes 16 vec4 per invocation at per-invocation addresses, straight-line as
+//!   `store_rows` does (three rounds of 4 M vec4, idle machine): a storage buffer took
+//!   1.53-1.64 ns per vec4, a storage texture 2.91-2.95 and workgroup memory 1.80-1.81
+//!   (the same order with the other core busy: 3.0, 5.0-6.0, 2.7-3.4). llvmpipe writes
+//!   all three lane by lane, so texel rows would cost the backward more than `outer`
+//!   would save, and workgroup memory is no cheaper (and could not hold a chunk's rows,
+//!   1232 bytes a sample against 32 KB, nor carry them to another launch).
+//!   The same stop timed two more things at the default field (`field_grid_throughput`,
+//!   backward with normals, interleaved, CPU ms): the fifth dead end's read of each
+//!   corner's gradient line before its atomic adds, redone with the loaded values kept
+//!   alive (a timing-only use, so LLVM cannot drop the loads): 957-1493 against
+//!   890-1137 (three rounds), no gain, so the scatter's cache misses are not what its
+//!   atomics wait for; and the backward with the 32 KB copy of the forward kernels
+//!   (2048 of the 2880 weight vec4 read from workgroup memory instead of 1024): 860-1027
+//!   against 870-963 (five rounds, medians 883 and 923), the same, which corrects the
+//!   tenth stop's "slower" (a noisier day) and says the default field's backward is not
+//!   set by its weight reads either. The 16 KB copy stays: nothing to gain.
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
