@@ -860,6 +860,51 @@ pub(crate) mod tests {
         assert!(last.iter().all(|&v| v == (steps - 1 + 39) as f32));
     }
 
+    /// The compute pipeline of `entry` in `module` for the ignored benchmarks below
+    /// (created under the driver lock, as every pipeline; `layout` None: wgpu's automatic
+    /// layout, which holds only the bindings the entry point uses).
+    fn bench_pipeline(
+        gpu: &crate::gpu::Gpu,
+        module: &wgpu::ShaderModule,
+        layout: Option<&wgpu::PipelineLayout>,
+        entry: &str,
+    ) -> wgpu::ComputePipeline {
+        let _driver = crate::gpu::driver_lock();
+        gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout,
+            module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    }
+
+    /// The fastest of five timed runs (after an untimed one) of `workgroups` workgroups
+    /// of `pipeline`, each submitted alone and waited for, in seconds.
+    fn best_dispatch_seconds(
+        gpu: &crate::gpu::Gpu,
+        pipeline: &wgpu::ComputePipeline,
+        bind_group: &wgpu::BindGroup,
+        workgroups: u32,
+    ) -> f64 {
+        let run = || {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, bind_group, &[]);
+                pass.dispatch_workgroups(workgroups, 1, 1);
+            }
+            let started = std::time::Instant::now();
+            gpu.submit(enc.finish(), &Default::default());
+            gpu.wait().unwrap();
+            started.elapsed().as_secs_f64()
+        };
+        run();
+        (0..5).map(|_| run()).fold(f64::INFINITY, f64::min)
+    }
+
     /// What a vec4 load at a per-invocation address inside a loop costs on this
     /// adapter from a storage buffer, a uniform buffer and a texture
     /// (`kernels/gpu/load_paths.wgsl`: the same 64 KB table, the access pattern of
@@ -937,17 +982,7 @@ pub(crate) mod tests {
         });
         let mut results = Vec::new();
         for (path, out) in ["from_storage", "from_uniform", "from_texture"].into_iter().zip(&sums) {
-            let pipeline = {
-                let _driver = crate::gpu::driver_lock();
-                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(path),
-                    layout: Some(&pipeline_layout),
-                    module: &module,
-                    entry_point: Some(path),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            };
+            let pipeline = bench_pipeline(&gpu, &module, Some(&pipeline_layout), path);
             let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: None,
                 layout: &layout,
@@ -959,21 +994,7 @@ pub(crate) mod tests {
                     wgpu::BindGroupEntry { binding: 4, resource: out.buffer.as_entire_binding() },
                 ],
             });
-            let run = || {
-                let mut enc = device.create_command_encoder(&Default::default());
-                {
-                    let mut pass = enc.begin_compute_pass(&Default::default());
-                    pass.set_pipeline(&pipeline);
-                    pass.set_bind_group(0, &bind_group, &[]);
-                    pass.dispatch_workgroups(threads / 64, 1, 1);
-                }
-                let started = std::time::Instant::now();
-                gpu.submit(enc.finish(), &Default::default());
-                gpu.wait().unwrap();
-                started.elapsed().as_secs_f64()
-            };
-            run();
-            let best = (0..5).map(|_| run()).fold(f64::INFINITY, f64::min);
+            let best = best_dispatch_seconds(&gpu, &pipeline, &bind_group, threads / 64);
             let loads = (threads * iters * 4) as f64;
             println!("{path}: {:.1} ms, {:.2} ns per vec4 load", best * 1e3, best * 1e9 / loads);
             results.push(out.read(&gpu).unwrap());
@@ -1023,17 +1044,7 @@ pub(crate) mod tests {
         let mut ns = std::collections::BTreeMap::new();
         for round in 0..3 {
             for path in ["to_nothing", "to_storage", "to_texture", "to_workgroup"] {
-                let pipeline = {
-                    let _driver = crate::gpu::driver_lock();
-                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                        label: Some(path),
-                        layout: None,
-                        module: &module,
-                        entry_point: Some(path),
-                        compilation_options: Default::default(),
-                        cache: None,
-                    })
-                };
+                let pipeline = bench_pipeline(&gpu, &module, None, path);
                 // The automatic layout holds only the bindings the entry point uses.
                 let mut entries = vec![];
                 match path {
@@ -1046,21 +1057,7 @@ pub(crate) mod tests {
                     layout: &pipeline.get_bind_group_layout(0),
                     entries: &entries,
                 });
-                let run = || {
-                    let mut enc = device.create_command_encoder(&Default::default());
-                    {
-                        let mut pass = enc.begin_compute_pass(&Default::default());
-                        pass.set_pipeline(&pipeline);
-                        pass.set_bind_group(0, &bind_group, &[]);
-                        pass.dispatch_workgroups(threads / 64, 1, 1);
-                    }
-                    let started = std::time::Instant::now();
-                    gpu.submit(enc.finish(), &Default::default());
-                    gpu.wait().unwrap();
-                    started.elapsed().as_secs_f64()
-                };
-                run();
-                let best = (0..5).map(|_| run()).fold(f64::INFINITY, f64::min);
+                let best = best_dispatch_seconds(&gpu, &pipeline, &bind_group, threads / 64);
                 let per_store = best * 1e9 / (threads * ROWS) as f64;
                 ns.entry(path).or_insert_with(Vec::new).push(per_store);
                 println!("round {round} {path}: {:.2} ms, {per_store:.2} ns per vec4", best * 1e3);
