@@ -346,6 +346,34 @@
 //!   tenth stop's "slower" (a noisier day) and says the default field's backward is not
 //!   set by its weight reads either. The 16 KB copy stays: nothing to gain.
 //!
+//!   A fourteenth (2026-11-28, eleventh stop) bounds what kernel changes can reach on
+//!   this driver. A timing-only *floor* variant keeps every product of both passes
+//!   (their results summed into one store per sample, so LLVM drops none) but makes
+//!   each corner's features from its entry index instead of reading the table, and
+//!   drops the scatter, the rows and `outer`. CPU ms for 65 k samples
+//!   (`field_grid_throughput` and `_small`; the floor and this build interleaved, three
+//!   rounds; the main, f239e83, from the same day's interleaved runs, README):
+//!
+//!   | field, pass | issue's main | now | floor | 5x the main |
+//!   |---|---|---|---|---|
+//!   | presets', forward with normals | 240-427 | 40-63 | 27-30 | 48-85 |
+//!   | presets', backward with normals | 557-757 | 240-270 | 43-57 | 111-151 |
+//!   | default, forward with normals | 650-880 | 277-543 | 113-130 | 130-176 |
+//!   | default, backward with normals | 1460-1677 | 1057-1253 | 310-583 | 292-335 |
+//!
+//!   So the default field's backward would miss 5x with its table reads, scatter,
+//!   rows and weight gradients all free; its forward would need the 256 table reads of
+//!   a sample (16 levels, 8 corners, 2 features) to cost at most a fifth of what they
+//!   cost now; and the presets' backward has about 55-105 ms for all its memory
+//!   traffic, where the scatter alone takes about 57 and the rows and `outer` about 84
+//!   (twelfth finding).
+//!   The table reads' cost is not their count: the same stop read each corner's two
+//!   features as one 64-bit load (`SHADER_INT64`, an `array<u64>` view of the table;
+//!   half the per-lane loads, the same results): the default field's forward with
+//!   normals took 253-347 against 297-443 ms of CPU (three rounds), within the noise.
+//!   Nor their bytes (the half-footprint table above), nor their order (fifth), nor the
+//!   TLB (sixth): what is left is the latency of random reads from a 64 MB table.
+//!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
 //!   `grid.mlp` (`W1 [W][in_pad] | W2 [16][W] | C1 [W][32] | C2 [W][W] | C3 [4][W]`,
