@@ -371,8 +371,14 @@
 //!   features as one 64-bit load (`SHADER_INT64`, an `array<u64>` view of the table;
 //!   half the per-lane loads, the same results): the default field's forward with
 //!   normals took 253-347 against 297-443 ms of CPU (three rounds), within the noise.
-//!   Nor their bytes (the half-footprint table above), nor their order (fifth), nor the
-//!   TLB (sixth): what is left is the latency of random reads from a 64 MB table.
+//!   Nor their order (fifth) nor the TLB (sixth). Their footprint is: with every level
+//!   confined to its first 16 k entries (timing only; 2 MB of table in all instead of
+//!   64, where halving it had done nothing) the default field's forward with normals
+//!   took 147-240 against 263-340 ms of CPU and its backward with normals 687-893
+//!   against 870-1017 (four interleaved rounds), faster in every round. So the default
+//!   field's passes wait on cache misses of a table that is larger than this CPU's
+//!   caches, which no kernel change removes; even at 2 MB its forward would only reach
+//!   the bar's edge (147-240 against the 130-176 the bar allows).
 //!
 //! # Invariants
 //! * Parameters: two `f32` buffers, `grid.table` (`2 x entries`, entry-major) and
