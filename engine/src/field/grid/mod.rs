@@ -427,7 +427,8 @@ pub const SHARED_WEIGHTS4: u32 = 1024;
 /// holds 2048 of a width-64 field's 2240 (synthetic-small) or 2368 (the default). On
 /// lavapipe that made the training forward of synthetic-small 1.2-1.4x faster; the
 /// backward stays at [`SHARED_WEIGHTS4`], where the larger copy measured no faster
-/// (synthetic-small) or slower (the default field). GPUs keep [`SHARED_WEIGHTS4`]
+/// (synthetic-small, and the default field in the thirteenth finding's five rounds;
+/// a first measurement had it slower there). GPUs keep [`SHARED_WEIGHTS4`]
 /// (untimed there). See "Weights in workgroup memory" in the module doc.
 pub const SHARED_WEIGHTS4_CPU_FORWARD: u32 = 2048;
 /// Samples summed per thread by the weight-gradient kernel on a CPU adapter, where
@@ -746,7 +747,7 @@ impl GridLayout {
         let c3 = c2 + w * w;
         let mlp_len = c3 + 4 * w;
         debug_assert!(mlp_len <= MAX_WEIGHT_FLOATS, "validated widths and levels fit the uniform weight block");
-        let copy4 = if cfg.workgroup_weights { ((mlp_len / 4) as u32).min(SHARED_WEIGHTS4) } else { 0 };
+        let copy4 = if cfg.workgroup_weights { whole_block_at_most(mlp_len, SHARED_WEIGHTS4) } else { 0 };
         let workgroup_weights4 = WorkgroupWeights4 { forward: copy4, backward: copy4 };
         Ok(Self { levels, table_entries: offset as usize, in_dim, in_pad, width: w, w1, w2, c1, c2, c3, mlp_len, workgroup_weights4 })
     }
@@ -755,7 +756,7 @@ impl GridLayout {
     /// (at most the whole block; unchanged when the copy is off).
     pub fn with_forward_copy4(mut self, max4: u32) -> Self {
         if self.workgroup_weights4.forward > 0 {
-            self.workgroup_weights4.forward = ((self.mlp_len / 4) as u32).min(max4);
+            self.workgroup_weights4.forward = whole_block_at_most(self.mlp_len, max4);
         }
         self
     }
@@ -1009,6 +1010,12 @@ pub fn initial_params(config: &GridConfig, layout: &GridLayout) -> (Vec<f32>, Ve
         }
     }
     (table, mlp)
+}
+
+/// A workgroup copy of the weight block of `mlp_len` floats: all of it, at most `max4`
+/// vec4s.
+fn whole_block_at_most(mlp_len: usize, max4: u32) -> u32 {
+    ((mlp_len / 4) as u32).min(max4)
 }
 
 /// The forward kernels' workgroup copy on `gpu`, in weight vec4s:
