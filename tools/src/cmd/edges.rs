@@ -19,7 +19,9 @@ pub struct EdgeArgs {
     /// Polarity of external maps: `dark` edges on white (DexiNed) or `bright` on black.
     #[arg(long, value_enum, value_name = "dark|bright")]
     pub edge_polarity: Option<PolarityArg>,
-    /// Binarization threshold on the map's grey level 0..255 (default 125).
+    /// Binarization threshold on an external map's grey level 0..255 (default 125).
+    /// Canny's map is 0 or 255, so with `--edges canny` any value in 1..255 gives the
+    /// same mask (0 makes every pixel an edge).
     #[arg(long, allow_negative_numbers = true, value_name = "LEVEL")]
     pub tau_e: Option<f32>,
     /// Do not widen edge regions with the 3x3 dilation.

@@ -31,10 +31,12 @@ pub struct Args {
     /// RegNeRF's optimizer and schedule). Recorded in the checkpoint.
     #[arg(long, value_parser = ["grid", "mlp"])]
     backend: Option<String>,
-    /// Switch off the edge-guided depth regularizer L_z (reg.depth = false).
+    /// Switch off the edge-guided depth terms (reg.depth = false): L_z, and with it the
+    /// planarity L_pl and the cross-view reprojection L_rp.
     #[arg(long)]
     no_depth_reg: bool,
-    /// Switch off the edge-guided normal regularizer L_n (reg.normal = false).
+    /// Switch off the edge-guided normal terms (reg.normal = false): L_n, and with it
+    /// the depth-normal consistency L_dn.
     #[arg(long)]
     no_normal_reg: bool,
     /// `paper`: the paper's equations; `official`: the authors' code (stop-gradient
