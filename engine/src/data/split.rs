@@ -18,6 +18,16 @@ pub struct Split {
     pub test: Vec<usize>,
 }
 
+impl Split {
+    /// The views of `0..n_views` in neither `train` nor `test`, in index order: a
+    /// validation set for choosing settings without looking at the test views (DTU's
+    /// excluded and unused protocol views, the training-side views a sparse run leaves
+    /// out).
+    pub fn unused(&self, n_views: usize) -> Vec<usize> {
+        (0..n_views).filter(|i| !self.train.contains(i) && !self.test.contains(i)).collect()
+    }
+}
+
 /// DTU training view ids in protocol order (pixelNeRF / RegNeRF); `k` views = first `k`.
 pub const DTU_TRAIN_VIEWS: [usize; 9] = [25, 22, 28, 40, 44, 48, 0, 8, 13];
 
@@ -109,6 +119,18 @@ pub fn subset_split(n: usize, views: Option<usize>) -> Result<Vec<usize>, String
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unused_views_are_dtus_excluded_and_unused_protocol_views() {
+        let nine = dtu_split(49, Some(9)).unwrap();
+        assert_eq!(nine.unused(49), DTU_EXCLUDED_VIEWS.to_vec());
+        let three = dtu_split(49, Some(3)).unwrap();
+        let mut expected: Vec<usize> = DTU_EXCLUDED_VIEWS.iter().chain(&DTU_TRAIN_VIEWS[3..]).copied().collect();
+        expected.sort();
+        assert_eq!(three.unused(49), expected);
+        let fern = llff_split(20, Some(3)).unwrap();
+        assert_eq!(fern.unused(20), vec![2, 3, 4, 5, 6, 7, 9, 11, 12, 13, 14, 15, 17, 18]);
+    }
 
     #[test]
     fn linspace_matches_numpy() {
