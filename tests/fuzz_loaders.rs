@@ -711,6 +711,7 @@ fn fuzz_checkpoint() {
         field: vec![NamedArray { name: "table".into(), shape: vec![2, 3], data: vec![0.5; 6] }],
         optimizer: vec![("adam.m.table".into(), vec![0.0; 6])],
         occupancy: Some(vec![1.0; 8]),
+        background: vec![("background.logits".into(), vec![0.25; 3])],
     };
     ckpt.save(&seed).unwrap();
     let seeds = vec![std::fs::read(&seed).unwrap()];

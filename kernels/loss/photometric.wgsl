@@ -1,6 +1,6 @@
 // Photometric loss L_c (owner: engine/src/loss/photometric.rs): mean squared error
 // over rays and RGB channels, with per-ray weights. Writes dL/d(RayOutput) (colour
-// part; the other fields zero, so regularizers add onto it) and each ray's weighted
+// part, and the opacity penalty's; the other fields zero, so regularizers add onto it) and each ray's weighted
 // squared error for logging. Targets of pixels with alpha are composited here onto the
 // background the renderer put behind the ray (RayAux.background; random backgrounds),
 // replacing the colour the images were composited over when loaded:
@@ -15,7 +15,9 @@ struct Params {
     scale: f32,
     // 1: composite the targets over the rendered backgrounds (above); 0: as given.
     recomposite: u32,
-    _pad0: u32,
+    // The opacity penalty's weight / (sum of ray weights): dL/d opacity of a ray is
+    // this times its weight (priors.sparsity; 0: off).
+    sparsity: f32,
     // The colour the loaded images were composited over.
     loaded_over: vec3<f32>,
     _pad1: f32,
@@ -45,7 +47,7 @@ fn photometric(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     let diff = rays[r].rgb - want.xyz;
     var d: RayOutput;
     d.rgb = 2.0 * params.scale * want.w * diff;
-    d.opacity = 0.0;
+    d.opacity = params.sparsity * want.w;
     d.normal = vec3<f32>(0.0);
     d.depth = 0.0;
     d_rays[r] = d;

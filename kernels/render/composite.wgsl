@@ -44,7 +44,8 @@
 
 struct Params {
     n_rays: u32,
-    // 0: no background (black); 1: the constant `background`; 2: random per ray.
+    // 0: no background (black); 1: the constant `background`; 2: random per ray;
+    // 3: per ray, as the caller wrote it into aux[r].background (learned background).
     bg_mode: u32,
     seed: u32,
     // Forward: write per-sample weights into `weights`.
@@ -102,6 +103,9 @@ fn background_for(ray: u32) -> vec3<f32> {
         case 2u: {
             let base = pcg_hash(params.seed ^ pcg_hash(ray));
             return vec3<f32>(unit_f32(pcg_hash(base)), unit_f32(pcg_hash(base + 1u)), unit_f32(pcg_hash(base + 2u)));
+        }
+        case 3u: {
+            return aux[ray].background;
         }
         default: {
             return vec3<f32>(0.0);

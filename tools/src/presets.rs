@@ -3,10 +3,12 @@
 //!
 //! Invariant: the embedded text is the file's (`include_str!` at build time), so a
 //! preset run without `--config` and one with `--config tools/configs/NAME` run the
-//! same configuration. The choice is by scene format only: LLFF gets `sparse-llff.toml`,
-//! DTU `sparse-dtu.toml`, Blender-format scenes `sparse-small.toml` (the measured
-//! defaults: README, "Edge-guided regularization"); nerfstudio and COLMAP scenes, for
-//! which no preset has been measured, keep the engine defaults.
+//! same configuration. The choice is by scene format and layout: LLFF gets
+//! `sparse-llff.toml`, DTU `sparse-dtu.toml`, Blender-format scenes `sparse-small.toml`;
+//! a nerfstudio or COLMAP capture gets the preset of the layout it loads as
+//! (`data::bounds`): a forward-facing one is an LLFF scene (`sparse-llff.toml`), an
+//! object-centric one gets `sparse-small.toml` (docs/results/real-captures.md measures
+//! it on a capture without alpha).
 
 use edgenerf::data::SceneFormat;
 
@@ -25,13 +27,15 @@ const SPARSE_DTU: Preset =
     Preset { path: "tools/configs/sparse-dtu.toml", text: include_str!("../configs/sparse-dtu.toml") };
 
 /// The preset a sparse-view run (`--views K`) of a grid field on a scene of `format`
-/// uses when no `--config` is given; `None` where none has been measured.
-pub fn sparse_preset(format: SceneFormat) -> Option<Preset> {
+/// uses when no `--config` is given; `forward_facing`: whether the scene loads with NDC
+/// rays (decides for nerfstudio and COLMAP captures).
+pub fn sparse_preset(format: SceneFormat, forward_facing: bool) -> Preset {
     match format {
-        SceneFormat::Llff => Some(SPARSE_LLFF),
-        SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf => Some(SPARSE_DTU),
-        SceneFormat::Blender => Some(SPARSE_SMALL),
-        SceneFormat::Nerfstudio | SceneFormat::Colmap => None,
+        SceneFormat::Llff => SPARSE_LLFF,
+        SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf => SPARSE_DTU,
+        SceneFormat::Blender => SPARSE_SMALL,
+        SceneFormat::Nerfstudio | SceneFormat::Colmap if forward_facing => SPARSE_LLFF,
+        SceneFormat::Nerfstudio | SceneFormat::Colmap => SPARSE_SMALL,
     }
 }
 
@@ -42,12 +46,13 @@ mod tests {
 
     #[test]
     fn every_preset_parses_and_names_its_file() {
-        for format in [SceneFormat::Llff, SceneFormat::DtuIdr, SceneFormat::Blender] {
-            let p = sparse_preset(format).unwrap();
+        for (format, ff) in [(SceneFormat::Llff, true), (SceneFormat::DtuIdr, false), (SceneFormat::Blender, false), (SceneFormat::Colmap, false)] {
+            let p = sparse_preset(format, ff);
             RunConfig::from_text_for(p.text, true, p.path, None).unwrap();
             let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p.path);
             assert_eq!(std::fs::read_to_string(file).unwrap(), p.text, "{}", p.path);
         }
-        assert!(sparse_preset(SceneFormat::Colmap).is_none());
+        assert_eq!(sparse_preset(SceneFormat::Colmap, true).path, SPARSE_LLFF.path);
+        assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_SMALL.path);
     }
 }

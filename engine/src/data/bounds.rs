@@ -18,9 +18,13 @@
 //!   z-depth, far = 1.1 x the largest per-view 99.9-percentile distance, and the box is
 //!   the 0.5-99.5 percentile box of the points (per axis), padded by 5 % of its size on
 //!   each side. Without points: the box is a cube centred on the point nearest to all
-//!   optical axes ([`super::camera::focus_point`]) reaching the mean camera distance `r`
-//!   from it (as nerfstudio's scene box encloses its cameras), near = `0.05 r`, far =
-//!   `(1 + sqrt 3) r`. Explicit `near` / `far` / `aabb` keys (nerfstudio files) win.
+//!   optical axes ([`super::camera::focus_point`]) of half side `h`, what the cameras
+//!   frame there (the median over the cameras of `distance x tan(half field of view)`,
+//!   narrower axis: [`framed_half_size`]), near = `0.05 r` and far = `r + sqrt(3) h`
+//!   with `r` the mean camera distance from the focus. (A box reaching the cameras, as
+//!   nerfstudio's, let a capture without alpha fill it with fog that looks like the
+//!   backdrop from every training view: docs/results/real-captures.md.) Explicit
+//!   `near` / `far` / `aabb` keys (nerfstudio files) win.
 //!
 //! Invariants: `0 <= near < far`, finite; `aabb` min < max; a forward-facing scene's
 //! ground-truth depth (nerfstudio `depth_file_path`) is rescaled with its poses.
@@ -84,6 +88,26 @@ fn view_ranges(cameras: &[Camera], points: &[Vec3]) -> Vec<Option<(f32, f32)>> {
             (!z.is_empty()).then(|| (percentile(&sorted(z), 0.1), percentile(&sorted(dist), 99.9)))
         })
         .collect()
+}
+
+/// Half the side of the box of an object-centric capture without points: what the
+/// cameras frame around their common focus `centre`. Each camera frames, at the
+/// focus, a half-width of `distance * tan(half field of view)` along its narrower image
+/// axis; the median over the cameras is taken (a close-up or a wide shot does not
+/// decide alone), so the object a capture photographs from all around fits, and what
+/// lies beyond it (a backdrop, a room) is left to the learned background rather than
+/// to fog inside a box that reaches the cameras.
+fn framed_half_size(cameras: &[Camera], centre: Vec3) -> f32 {
+    let half = sorted(
+        cameras
+            .iter()
+            .map(|c| {
+                let tan = (c.width as f32 / (2.0 * c.fx)).min(c.height as f32 / (2.0 * c.fy));
+                c.origin().distance(centre) * tan
+            })
+            .collect(),
+    );
+    percentile(&half, 50.0)
 }
 
 /// The 0.5-99.5 percentile box of `points`, padded by 5 % of its size per side.
@@ -159,9 +183,10 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
     let (near, far, aabb) = if seen.is_empty() {
         let centre = focus_point(&cameras);
         let r = cameras.iter().map(|c| c.origin().distance(centre)).sum::<f32>() / cameras.len().max(1) as f32;
+        let h = framed_half_size(&cameras, centre);
         let near = near_far[0].unwrap_or(0.05 * r);
-        let far = near_far[1].unwrap_or((1.0 + 3f32.sqrt()) * r);
-        (near, far, aabb.unwrap_or([centre - Vec3::splat(r), centre + Vec3::splat(r)]))
+        let far = near_far[1].unwrap_or(r + 3f32.sqrt() * h);
+        (near, far, aabb.unwrap_or([centre - Vec3::splat(h), centre + Vec3::splat(h)]))
     } else {
         let near = near_far[0].unwrap_or(0.9 * seen.iter().map(|r| r.0).fold(f32::INFINITY, f32::min));
         let far = near_far[1].unwrap_or(1.1 * seen.iter().map(|r| r.1).fold(0.0, f32::max));

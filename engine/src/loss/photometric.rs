@@ -35,7 +35,7 @@ struct Params {
     n_rays: u32,
     scale: f32,
     recomposite: u32,
-    _pad0: u32,
+    sparsity: f32,
     loaded_over: [f32; 3],
     _pad1: f32,
 }
@@ -85,6 +85,7 @@ impl Photometric {
         n: u32,
         weight_sum: f32,
         lambda: f32,
+        sparsity: f32,
     ) {
         assert!(rays.len() >= n as usize && targets.len() >= n as usize && d_rays.len() >= n as usize);
         assert!(self.sq_error.len() >= n as usize, "photometric buffer for {} rays, batch of {n}", self.sq_error.len());
@@ -96,7 +97,7 @@ impl Photometric {
             n_rays: n,
             scale,
             recomposite: recomposite.is_some() as u32,
-            _pad0: 0,
+            sparsity: if weight_sum > 0.0 { sparsity / weight_sum } else { 0.0 },
             loaded_over: recomposite.map_or([0.0; 3], |rc| rc.loaded_over),
             _pad1: 0.0,
         });
@@ -108,6 +109,9 @@ impl Photometric {
         );
     }
 
+    /// With `sparsity = lambda_sp > 0` the launch also writes the gradient of the opacity
+    /// penalty `L_sp = lambda_sp sum_r w_r opacity_r / sum_r w_r` (the `priors.sparsity`
+    /// prior): `dL/d opacity_r = lambda_sp w_r / sum w`. Its value is not logged.
     /// Mean squared error of the last launch over `n` rays with weights summing to
     /// `weight_sum` (waits for the GPU).
     pub fn mse(&self, gpu: &Gpu, n: usize, weight_sum: f32) -> Result<f32, GpuError> {
@@ -153,7 +157,7 @@ mod tests {
         let targets_buf = GpuBuffer::from_slice(&gpu, "targets", &targets).unwrap();
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", n as usize).unwrap();
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, 0.0);
         enc.submit();
         let mse = loss.mse(&gpu, n as usize, weight_sum).unwrap();
         assert!((mse as f64 - loss_of(&rays)).abs() < 1e-6);
@@ -168,7 +172,16 @@ mod tests {
                 let fd = (loss_of(&plus) - loss_of(&minus)) / (2.0 * h as f64);
                 assert!((grads[r].rgb[c] as f64 - fd).abs() < 1e-4, "ray {r} channel {c}: {} vs {fd}", grads[r].rgb[c]);
             }
-            assert_eq!(grads[r].depth, 0.0);
+            assert_eq!((grads[r].depth, grads[r].opacity), (0.0, 0.0));
+        }
+        // The opacity penalty: lambda_sp w_r / sum w on each ray's opacity, nothing else changed.
+        let mut enc = gpu.encoder();
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, 0.5);
+        enc.submit();
+        let with = d.read(&gpu).unwrap();
+        for r in 0..n as usize {
+            assert!((with[r].opacity - 0.5 * targets[r][3] / weight_sum).abs() < 1e-7, "ray {r}: {}", with[r].opacity);
+            assert_eq!(with[r].rgb, grads[r].rgb);
         }
     }
 
@@ -197,7 +210,7 @@ mod tests {
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", 4).unwrap();
         let rc = Recomposite { aux: &aux_buf, alpha: &alpha_buf, loaded_over };
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&rc), &d, 4, 4.0, 1.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&rc), &d, 4, 4.0, 1.0, 0.0);
         enc.submit();
         let grads = d.read(&gpu).unwrap();
         let mut sq = 0.0f64;
@@ -213,7 +226,7 @@ mod tests {
         assert!((mse as f64 - sq / 12.0).abs() < 1e-6, "{mse} vs {}", sq / 12.0);
         // Without recompositing the same call scores the targets as given.
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, 4, 4.0, 1.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, 4, 4.0, 1.0, 0.0);
         enc.submit();
         assert!((d.read(&gpu).unwrap()[0].rgb[0] - 2.0 * (rays[0].rgb[0] - 0.8) / 12.0).abs() < 1e-6);
     }
@@ -226,6 +239,6 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "loss/photometric.wgsl", "Params", [n_rays, scale, recomposite, loaded_over]);
+        crate::assert_wgsl_mirror!(Params, "loss/photometric.wgsl", "Params", [n_rays, scale, recomposite, sparsity, loaded_over]);
     }
 }

@@ -43,7 +43,18 @@ fn one() -> f32 {
 pub enum LrDecay {
     #[default]
     None,
-    Exponential { start: u64, interval: u64, base: f32 },
+    Exponential {
+        start: u64,
+        interval: u64,
+        base: f32,
+        /// The run length `start` and `interval` are written for: a run of other
+        /// `train.iters` has both scaled by `iters / for_iters`
+        /// ([`LrDecay::scale_to_iters`]), so a preset's decay keeps its shape over a
+        /// longer run instead of ending it at a learning rate near zero. `None`: steps
+        /// as written.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        for_iters: Option<u64>,
+    },
     Steps { milestones: Vec<u64>, gamma: f32 },
 }
 
@@ -74,6 +85,24 @@ pub enum LrSchedule {
     },
 }
 
+impl LrDecay {
+    /// An [`LrDecay::Exponential`] written for `for_iters` steps, rescaled to a run of
+    /// `iters` (start and interval times `iters / for_iters`, rounded, the interval at
+    /// least 1; `for_iters` becomes `iters`, so the call is idempotent). Other decays
+    /// are left alone.
+    pub fn scale_to_iters(&mut self, iters: u64) {
+        if let LrDecay::Exponential { start, interval, for_iters: Some(written), .. } = self
+            && *written != iters
+            && *written > 0
+        {
+            let f = iters as f64 / *written as f64;
+            *start = (*start as f64 * f).round() as u64;
+            *interval = ((*interval as f64 * f).round() as u64).max(1);
+            *written = iters;
+        }
+    }
+}
+
 impl Default for LrSchedule {
     /// [`LrSchedule::instant_ngp`].
     fn default() -> Self {
@@ -88,7 +117,7 @@ impl LrSchedule {
             lr: 1e-2,
             warmup_steps: 100,
             warmup_start_factor: 0.01,
-            decay: LrDecay::Exponential { start: 20_000, interval: 10_000, base: 0.33 },
+            decay: LrDecay::Exponential { start: 20_000, interval: 10_000, base: 0.33, for_iters: None },
         }
     }
 
@@ -112,7 +141,7 @@ impl LrSchedule {
                 };
                 let k = match decay {
                     LrDecay::None => 1.0,
-                    LrDecay::Exponential { start, interval, base } => {
+                    LrDecay::Exponential { start, interval, base, .. } => {
                         if step < *start {
                             1.0
                         } else {

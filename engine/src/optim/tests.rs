@@ -718,9 +718,31 @@ fn ngp_schedule_warmup_and_decay() {
     };
     assert_eq!([steps.lr(0), steps.lr(9), steps.lr(10), steps.lr(25), steps.lr(30), steps.lr(99)], [1.0, 1.0, 0.5, 0.25, 0.125, 0.125]);
     assert_eq!(LrSchedule::Constant { lr: 3e-3 }.lr(12345), 3e-3);
-    let bad = LrSchedule::Ngp { lr: 1.0, warmup_steps: 0, warmup_start_factor: 1.0, decay: LrDecay::Exponential { start: 0, interval: 0, base: 0.5 } };
+    let bad = LrSchedule::Ngp { lr: 1.0, warmup_steps: 0, warmup_start_factor: 1.0, decay: LrDecay::Exponential { start: 0, interval: 0, base: 0.5, for_iters: None } };
     assert!(bad.validate().is_err());
     assert!(LrSchedule::LogLinear { lr_init: 0.0, lr_final: 1.0, max_steps: 1, lr_delay_steps: 0, lr_delay_mult: 1.0 }.validate().is_err());
+}
+
+#[test]
+fn exponential_decay_written_for_a_run_length_stretches_with_iters() {
+    // A preset's decay for 800 steps (x0.7 at 500, 600, 700, 800) over a 2400-step run:
+    // x0.7 at 1500, 1800, 2100, 2400, so the run ends at the preset's final rate.
+    let decay = LrDecay::Exponential { start: 500, interval: 100, base: 0.5, for_iters: Some(800) };
+    let schedule = |decay: LrDecay| LrSchedule::Ngp { lr: 1.0, warmup_steps: 0, warmup_start_factor: 1.0, decay };
+    let mut long = decay.clone();
+    long.scale_to_iters(2400);
+    assert_eq!(long, LrDecay::Exponential { start: 1500, interval: 300, base: 0.5, for_iters: Some(2400) });
+    let (short, long) = (schedule(decay.clone()), schedule(long.clone()));
+    for (s800, s2400, lr) in [(499, 1499, 1.0), (500, 1500, 0.5), (650, 1950, 0.25), (800, 2400, 0.0625)] {
+        assert_eq!((short.lr(s800), long.lr(s2400)), (lr, lr), "steps {s800} / {s2400}");
+    }
+    // Idempotent, and a decay without a run length is left as written.
+    let mut again = match &long { LrSchedule::Ngp { decay, .. } => decay.clone(), _ => unreachable!() };
+    again.scale_to_iters(2400);
+    assert_eq!(again, LrDecay::Exponential { start: 1500, interval: 300, base: 0.5, for_iters: Some(2400) });
+    let mut fixed = LrDecay::Exponential { start: 500, interval: 100, base: 0.5, for_iters: None };
+    fixed.scale_to_iters(2400);
+    assert_eq!(fixed, LrDecay::Exponential { start: 500, interval: 100, base: 0.5, for_iters: None });
 }
 
 #[test]

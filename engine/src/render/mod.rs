@@ -37,9 +37,11 @@
 //! residual transmittance `T_K` is given to the background through `1 - opacity`.
 //! A threshold of 0 disables termination.
 //!
-//! **Background.** [`Background::Black`] (no background), a constant colour, or a
+//! **Background.** [`Background::Black`] (no background), a constant colour, a
 //! random colour per ray (uniform in `[0, 1)^3`, a hash of a per-launch seed and the
-//! ray index, see [`random_background`]). The forward pass writes the colour it used
+//! ray index, see [`random_background`]), or [`Background::Learned`]: a colour per ray
+//! that the caller wrote into [`RayAux::background`] before the forward pass
+//! ([`background`]: the learned background of captures without alpha). The forward pass writes the colour it used
 //! to [`RayAux::background`], which the backward pass reads and the photometric loss
 //! composites targets with alpha onto (`loss::photometric`).
 //!
@@ -75,11 +77,13 @@
 //!   past `K`), or with `accumulate` adds to them: each sample belongs to one ray, so
 //!   no atomics are needed.
 
+pub mod background;
 pub mod priors;
 pub mod reference;
 #[cfg(test)]
 mod tests;
 
+pub use background::{LearnedBackground, LearnedBackgroundConfig};
 pub use priors::{PriorConfig, PriorTerms, RayPriors};
 
 use std::sync::Arc;
@@ -153,6 +157,14 @@ pub enum Background {
     /// A random colour per ray and launch, uniform in `[0, 1)^3` (Instant-NGP's
     /// trick for scenes with alpha): [`random_background`] of the launch seed.
     Random,
+    /// A colour per ray that the caller writes into [`RayAux::background`] before the
+    /// forward pass: the [`LearnedBackground`] of captures without alpha.
+    Learned,
+    /// Chosen per scene by the trainer (`train::model::background_of`): the scene's
+    /// colour where it has one, a [`LearnedBackground`] for world-space scenes whose
+    /// training images have no alpha (photographs), else black. The renderer treats
+    /// an unresolved `Auto` as black.
+    Auto,
 }
 
 /// Configuration of the render room.
@@ -162,11 +174,13 @@ pub struct RenderConfig {
     pub background: Background,
     /// Early termination: samples with transmittance below this do not contribute.
     pub transmittance_threshold: f32,
+    /// The maps of [`Background::Learned`] (unused otherwise).
+    pub learned_background: LearnedBackgroundConfig,
 }
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        Self { background: Background::Black, transmittance_threshold: 1e-4 }
+        Self { background: Background::Auto, transmittance_threshold: 1e-4, learned_background: LearnedBackgroundConfig::default() }
     }
 }
 
@@ -261,9 +275,10 @@ impl Renderer {
     fn params(&self, n_rays: u32, seed: u32) -> Params {
         let c = self.priors.coefficients();
         let (bg_mode, rgb) = match self.config.background {
-            Background::Black => (0, [0.0; 3]),
+            Background::Black | Background::Auto => (0, [0.0; 3]),
             Background::Color { rgb } => (1, rgb),
             Background::Random => (2, [0.0; 3]),
+            Background::Learned => (3, [0.0; 3]),
         };
         Params {
             n_rays,
@@ -367,12 +382,14 @@ pub fn random_background(seed: u32, ray: u32) -> [f32; 3] {
     [0, 1, 2].map(|k| unit_f32(pcg_hash(base.wrapping_add(k))))
 }
 
-/// The background colour the forward pass composites behind ray `ray`.
-pub fn background_of(background: &Background, seed: u32, ray: u32) -> [f32; 3] {
+/// The background colour the forward pass composites behind ray `ray`; `None` for
+/// [`Background::Learned`], whose colours are the caller's ([`RayAux::background`]).
+pub fn background_of(background: &Background, seed: u32, ray: u32) -> Option<[f32; 3]> {
     match *background {
-        Background::Black => [0.0; 3],
-        Background::Color { rgb } => rgb,
-        Background::Random => random_background(seed, ray),
+        Background::Black | Background::Auto => Some([0.0; 3]),
+        Background::Color { rgb } => Some(rgb),
+        Background::Random => Some(random_background(seed, ray)),
+        Background::Learned => None,
     }
 }
 

@@ -64,17 +64,28 @@ pub struct PriorConfig {
     /// Weight of Ref-NeRF's orientation penalty on the analytic normals (0: off; Ref-NeRF
     /// uses 0.1 with its predicted normals).
     pub orientation: f32,
+    /// Weight of the opacity penalty `L_sp = mean_r opacity_r` over the photometric
+    /// rays (0: off): space that nothing in the images needs stays empty, so where a
+    /// learned background already explains a pixel (a capture without alpha) no fog
+    /// forms in front of it. Applied through the photometric loss's `dL/d opacity`
+    /// (`loss::photometric`); its value is not logged.
+    pub sparsity: f32,
 }
 
 impl Default for PriorConfig {
     fn default() -> Self {
-        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0 }
+        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0 }
     }
 }
 
 impl PriorConfig {
     pub fn validate(&self) -> Result<(), String> {
-        for (name, v) in [("priors.distortion", self.distortion), ("priors.occlusion", self.occlusion), ("priors.orientation", self.orientation)] {
+        for (name, v) in [
+            ("priors.distortion", self.distortion),
+            ("priors.occlusion", self.occlusion),
+            ("priors.orientation", self.orientation),
+            ("priors.sparsity", self.sparsity),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
             }

@@ -172,7 +172,7 @@ fn sentinel_grads(n: usize) -> Grads {
 }
 
 fn backgrounds(cfg: &RenderConfig, seed: u32, n: u32) -> Vec<[f32; 3]> {
-    (0..n).map(|r| background_of(&cfg.background, seed, r)).collect()
+    (0..n).map(|r| background_of(&cfg.background, seed, r).expect("a background of the launch")).collect()
 }
 
 fn reference_of(h: &HostBatch, cfg: &RenderConfig, seed: u32) -> Vec<RefRay> {
@@ -261,10 +261,10 @@ fn forward_matches_reference_for_every_background() {
     let up = upload(&gpu, &h);
     let configs = [
         RenderConfig::default(),
-        RenderConfig { background: Background::Color { rgb: [0.25, 1.0, 0.5] }, transmittance_threshold: 1e-4 },
-        RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 },
-        RenderConfig { background: Background::Color { rgb: [1.0; 3] }, transmittance_threshold: 0.0 },
-        RenderConfig { background: Background::Black, transmittance_threshold: 1e-2 },
+        RenderConfig { background: Background::Color { rgb: [0.25, 1.0, 0.5] }, transmittance_threshold: 1e-4, ..Default::default() },
+        RenderConfig { background: Background::Random, transmittance_threshold: 1e-4, ..Default::default() },
+        RenderConfig { background: Background::Color { rgb: [1.0; 3] }, transmittance_threshold: 0.0, ..Default::default() },
+        RenderConfig { background: Background::Black, transmittance_threshold: 1e-2, ..Default::default() },
     ];
     for cfg in configs {
         let renderer = Renderer::new(&gpu, cfg).unwrap();
@@ -282,6 +282,42 @@ fn forward_matches_reference_for_every_background() {
             assert_eq!(cut, 0);
         }
     }
+}
+
+#[test]
+fn learned_background_is_read_per_ray_from_aux() {
+    // Background::Learned composites the colour the caller wrote into each ray's aux,
+    // in the forward pass and, through u_i, in the backward (its colours enter
+    // nowhere else): the same outputs and gradients as a colour background per ray.
+    let gpu = test_gpu(false);
+    let mut rng = SplitMix64::new(21);
+    let h = random_batch(&mut rng, 300, 32);
+    let up = upload(&gpu, &h);
+    let bgs: Vec<[f32; 3]> = (0..h.n_rays()).map(|_| [rng.range_f32(0.0, 1.0), rng.range_f32(0.0, 1.0), rng.range_f32(0.0, 1.0)]).collect();
+    let cfg = RenderConfig { background: Background::Learned, ..Default::default() };
+    let renderer = Renderer::new(&gpu, cfg).unwrap();
+    let out = RenderOutputs::new(&gpu, up.batch.n_rays, Some(up.batch.capacity)).unwrap();
+    out.aux.write(&gpu, &bgs.iter().map(|&background| RayAux { background, ..Default::default() }).collect::<Vec<_>>());
+    let mut enc = gpu.encoder();
+    renderer.forward(&mut enc, &up.batch, &up.field, &out, 3).unwrap();
+    enc.submit();
+    let (rays, aux) = (out.rays.read(&gpu).unwrap(), out.aux.read(&gpu).unwrap());
+    let refs = reference::forward_batch(&h.ranges, &h.samples, &h.density, &h.rgb, &h.normal, &bgs, cfg.transmittance_threshold);
+    let mut checked = 0;
+    for (r, ((gpu_ray, a), reference)) in rays.iter().zip(&aux).zip(&refs).enumerate() {
+        assert_eq!(a.background, bgs[r], "ray {r}: the forward keeps the caller's background");
+        if a.n_contrib as usize != reference.n_contrib {
+            continue;
+        }
+        for c in 0..3 {
+            let want = reference.rgb[c];
+            assert!((gpu_ray.rgb[c] as f64 - want).abs() <= 1e-5 + GPU_REL_TOL * want.abs(), "ray {r}: {} vs {want}", gpu_ray.rgb[c]);
+        }
+        checked += 1;
+    }
+    assert!(checked > 280, "{checked} rays checked");
+    // Some rays show their background: the test would not notice a black one.
+    assert!(refs.iter().filter(|r| r.opacity < 0.5).count() > 20);
 }
 
 #[test]
@@ -501,7 +537,7 @@ fn backward_matches_finite_differences_black() {
 
 #[test]
 fn backward_matches_finite_differences_colour_background() {
-    check_backward_fd(RenderConfig { background: Background::Color { rgb: [0.9, 0.1, 0.6] }, transmittance_threshold: 1e-4 }, 12);
+    check_backward_fd(RenderConfig { background: Background::Color { rgb: [0.9, 0.1, 0.6] }, transmittance_threshold: 1e-4, ..Default::default() }, 12);
 }
 
 #[test]
@@ -517,8 +553,8 @@ fn backward_with_priors_matches_finite_differences() {
         lambda_orientation: 1.0,
         orientation_scale: 0.5,
     };
-    check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4 }, priors, 14);
-    check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 }, priors, 15);
+    check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4, ..Default::default() }, priors, 14);
+    check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4, ..Default::default() }, priors, 15);
 }
 
 #[test]
@@ -541,7 +577,7 @@ fn priors_off_leave_the_gradients_unchanged() {
 
 #[test]
 fn backward_matches_finite_differences_random_background_no_termination() {
-    check_backward_fd(RenderConfig { background: Background::Random, transmittance_threshold: 0.0 }, 13);
+    check_backward_fd(RenderConfig { background: Background::Random, transmittance_threshold: 0.0, ..Default::default() }, 13);
 }
 
 #[test]
@@ -640,11 +676,11 @@ fn undersized_buffers_are_errors() {
 
 #[test]
 fn config_round_trips_through_json() {
-    let cfg = RenderConfig { background: Background::Color { rgb: [1.0, 0.5, 0.0] }, transmittance_threshold: 1e-3 };
+    let cfg = RenderConfig { background: Background::Color { rgb: [1.0, 0.5, 0.0] }, transmittance_threshold: 1e-3, ..Default::default() };
     let s = serde_json::to_string(&cfg).unwrap();
     assert_eq!(serde_json::from_str::<RenderConfig>(&s).unwrap(), cfg);
     let r: RenderConfig = serde_json::from_str(r#"{"background":{"kind":"random"}}"#).unwrap();
-    assert_eq!(r, RenderConfig { background: Background::Random, transmittance_threshold: 1e-4 });
+    assert_eq!(r, RenderConfig { background: Background::Random, transmittance_threshold: 1e-4, ..Default::default() });
 }
 
 /// Throughput on the device in use (run with `--ignored --nocapture`).

@@ -5,7 +5,8 @@
 //! `adam.*` for every array of `Adam::export_state`, and `occupancy.density` (the
 //! occupancy grid's EMA densities, `resolution^3` in x-fastest order; absent from
 //! checkpoints of uniform-mode runs and of builds before it was added, whose grid is
-//! then rebuilt from the field). Metadata keys: `format`
+//! then rebuilt from the field), and `background.*` (the learned background's maps and
+//! Adam state, [`crate::render::background`], for runs that have one). Metadata keys: `format`
 //! (`edgenerf-checkpoint`), `version` (`1`), `step`, `backend`, `config` (JSON of the
 //! [`RunConfig`]).
 //!
@@ -36,6 +37,9 @@ pub struct Checkpoint {
     /// skip exactly the space training skipped (a grid rebuilt from the field by one
     /// query per cell differs, and the field was trained with the grid it had).
     pub occupancy: Option<Vec<f32>>,
+    /// The learned background's maps and optimizer state (`background.*` tensors; empty
+    /// for runs without one).
+    pub background: Vec<(String, Vec<f32>)>,
 }
 
 /// Tensor name of [`Checkpoint::occupancy`].
@@ -57,6 +61,9 @@ impl Checkpoint {
         }
         if let Some(d) = &self.occupancy {
             bytes.push((OCCUPANCY.to_string(), bytemuck::cast_slice(d).to_vec(), vec![d.len()]));
+        }
+        for (name, data) in &self.background {
+            bytes.push((name.clone(), bytemuck::cast_slice(data).to_vec(), vec![data.len()]));
         }
         let views = bytes
             .iter()
@@ -92,6 +99,7 @@ impl Checkpoint {
         let mut field = Vec::new();
         let mut optimizer = Vec::new();
         let mut occupancy = None;
+        let mut background = Vec::new();
         for (name, view) in tensors.tensors() {
             if view.dtype() != Dtype::F32 {
                 return Err(corrupt(path, format!("tensor {name} is {:?}, expected F32", view.dtype())));
@@ -101,11 +109,15 @@ impl Checkpoint {
                 occupancy = Some(values);
                 continue;
             }
+            if name.starts_with("background.") {
+                background.push((name, values));
+                continue;
+            }
             match name.strip_prefix("field.") {
                 Some(n) => field.push(NamedArray { name: n.to_string(), shape: view.shape().to_vec(), data: values }),
                 None => optimizer.push((name, values)),
             }
         }
-        Ok(Checkpoint { step, config, field, optimizer, occupancy })
+        Ok(Checkpoint { step, config, field, optimizer, occupancy, background })
     }
 }

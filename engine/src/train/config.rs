@@ -314,12 +314,17 @@ impl RunConfig {
     }
 
     /// Fills in what depends on other settings: a log-linear schedule with
-    /// `max_steps = 0` decays over `train.iters`. Idempotent; the trainer calls it.
+    /// `max_steps = 0` decays over `train.iters`; an exponential decay written for
+    /// `for_iters` steps is stretched to `train.iters` ([`crate::optim::LrDecay::scale_to_iters`]).
+    /// Idempotent; the trainer calls it.
     pub fn resolve(&mut self) {
         if let LrSchedule::LogLinear { max_steps, .. } = &mut self.optim.schedule
             && *max_steps == FOLLOW_ITERS
         {
             *max_steps = self.train.iters.max(1);
+        }
+        if let LrSchedule::Ngp { decay, .. } = &mut self.optim.schedule {
+            decay.scale_to_iters(self.train.iters.max(1));
         }
     }
 
@@ -428,6 +433,7 @@ impl RunConfig {
         {
             return Err(format!("render.background.rgb = {rgb:?}: each channel must lie in [0, 1]"));
         }
+        self.render.learned_background.validate()?;
         Ok(())
     }
 

@@ -130,13 +130,18 @@ pub fn depth_points(
 ) -> Result<TriMesh, TrainError> {
     let background = match model.render_config().background {
         Background::Color { rgb } => Some(Vec3::from(rgb)),
-        Background::Black => Some(Vec3::ZERO),
-        Background::Random => None,
+        Background::Black | Background::Auto => Some(Vec3::ZERO),
+        // Per ray: taken from the model's learned background below.
+        Background::Random | Background::Learned => None,
     };
     let mut cloud = TriMesh::default();
     for (k, &v) in views.iter().enumerate() {
         let r = model.render_view(gpu, scene, v)?;
         let rays = scene.image_rays(v);
+        let learned = model.background.as_ref().map(|bg| {
+            let dirs: Vec<[f32; 3]> = scene.camera_rays(&scene.views[v].camera).iter().map(|r| super::rays::to_gpu_ray(scene, r).dir).collect();
+            bg.colors(&dirs)
+        });
         let normals = r.unit_normals();
         for (i, ray) in rays.iter().enumerate() {
             let a = r.opacity[i];
@@ -162,7 +167,8 @@ pub fn depth_points(
                 }
             };
             let rgb = Vec3::from(r.rgb[i]);
-            let c = background.map_or(rgb, |bg| (rgb - (1.0 - a) * bg) / a);
+            let bg = background.or_else(|| learned.as_ref().map(|l| Vec3::from(l[i])));
+            let c = bg.map_or(rgb, |bg| (rgb - (1.0 - a) * bg) / a);
             cloud.positions.push(p);
             cloud.normals.push(n);
             cloud.colors.push(to_u8(c.to_array()));

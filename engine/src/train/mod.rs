@@ -307,7 +307,13 @@ struct InFlight {
     losses: LossReads,
     stats: ReadSlot<f32>,
     read: PendingRead,
+    /// With a learned background: the directions of the step's photometric rays.
+    background_dirs: Option<Vec<[f32; 3]>>,
 }
+
+/// Adam steps of a fresh run's learned background on its training images' frames
+/// ([`crate::render::LearnedBackground::prefit`]).
+const BACKGROUND_PREFIT_STEPS: u32 = 300;
 
 impl Trainer {
     /// A new run on `scene` with `config` (the scene path in the config is informative);
@@ -326,7 +332,11 @@ impl Trainer {
     pub fn with_edge_masks(gpu: Gpu, scene: Scene, mut config: RunConfig, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         config.resolve_for(&scene)?;
         check_edge_masks(&scene, masks.as_deref())?;
-        let model = Model::new(&gpu, &scene, config)?;
+        let mut model = Model::new(&gpu, &scene, config)?;
+        if let Some(bg) = &mut model.background {
+            let (dirs, colors) = model::frame_pixels(&scene);
+            bg.prefit(&dirs, &colors, BACKGROUND_PREFIT_STEPS);
+        }
         Self::with_model(gpu, scene, model, masks)
     }
 
@@ -529,6 +539,7 @@ impl Trainer {
         self.model.update_occupancy(&gpu, step, self.model.occupancy_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);
+        let background_dirs = self.model.background.is_some().then(|| batch.rays.iter().map(|r| r.dir).collect());
         // The whole step goes into one encoder and one submission, with the readback at
         // its end (profiling submits once per stage instead).
         let mut enc = gpu.encoder();
@@ -562,6 +573,7 @@ impl Trainer {
             losses,
             stats,
             read,
+            background_dirs,
         })
     }
 
@@ -578,6 +590,13 @@ impl Trainer {
                 self.adam.set_step_count(self.adam.step_count() - 1);
             }
             return Err(e);
+        }
+        // The learned background's Adam step, on the host, from this step's rays (a
+        // pipelined step's update lands one step late, as its figures do).
+        if let (Some(bg), Some(dirs), Some((d_rgb, opacity))) =
+            (&mut self.model.background, &f.background_dirs, self.pipeline.background_grads(&back, &f.losses))
+        {
+            bg.step(dirs, &d_rgb, &opacity, f.lr);
         }
         let counts = losses.samples;
         self.end_stage(Stage::Optimizer)?;
@@ -625,6 +644,7 @@ impl Trainer {
             field: self.model.field.export(&self.gpu)?,
             optimizer: self.adam.export_state(&self.gpu)?,
             occupancy: self.model.occupancy.export_density(&self.gpu)?,
+            background: self.model.background.as_ref().map(|b| b.export()).unwrap_or_default(),
         })
     }
 

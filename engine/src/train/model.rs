@@ -11,7 +11,7 @@
 use crate::data::{Camera, Scene};
 use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Encoder, Gpu, GpuBuffer};
-use crate::render::{Background, RenderConfig, RenderOutputs, Renderer};
+use crate::render::{Background, LearnedBackground, RenderConfig, RenderOutputs, Renderer};
 use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
 use crate::layout::{FieldOutputs, GpuRay, GpuSample, RayOutput, SampleBatch, SampleRange};
 
@@ -90,6 +90,9 @@ pub struct Model {
     pub occupancy: OccupancyGrid,
     sampler: Sampler,
     renderer: Renderer,
+    /// The learned background of captures without alpha (`Background::Learned`):
+    /// trained by the [`super::Trainer`], read by every render.
+    pub background: Option<LearnedBackground>,
     occupancy_densities: Option<GpuBuffer<f32>>,
     render_buffers: Option<BatchBuffers>,
 }
@@ -146,12 +149,55 @@ pub fn seen_by_training_cameras(scene: &Scene) -> impl Fn(glam::Vec3, glam::Vec3
     }
 }
 
-/// The background a run renders over: the configured one, else the scene's, else black.
+/// The background a run renders over: the configured colour, else the scene's, else
+/// `render.background`, whose default [`Background::Auto`] is a learned background for
+/// world-space scenes whose training images have no alpha (photographs: what lies
+/// beyond the box needs a colour other than fog) and black for the others (NDC rays
+/// end at infinity).
 pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
     match config.scene.background.or(scene.background) {
         Some(rgb) => Background::Color { rgb },
-        None => config.render.background,
+        None => match config.render.background {
+            Background::Auto if scene.ndc.is_none() && scene.train_views().all(|v| v.alpha.is_none()) => Background::Learned,
+            Background::Auto => Background::Black,
+            other => other,
+        },
     }
+}
+
+/// The directions (the field's ray space) and colours of the pixels in a frame around
+/// each training image, `max(1, min(w, h) / 50)` pixels wide, at most about 20 000 in
+/// all (a regular subsample): what a learned background is fitted to before training
+/// (in object-centric captures the frame mostly shows what lies behind the object).
+pub fn frame_pixels(scene: &Scene) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let mut picked = Vec::new();
+    for &v in &scene.split.train {
+        let view = &scene.views[v];
+        let (w, h) = (view.camera.width as usize, view.camera.height as usize);
+        if view.image.data.len() < 3 * w * h {
+            continue;
+        }
+        let band = (w.min(h) / 50).max(1);
+        for y in 0..h {
+            for x in 0..w {
+                if x < band || y < band || x + band >= w || y + band >= h {
+                    picked.push((v, x, y));
+                }
+            }
+        }
+    }
+    let stride = picked.len().div_ceil(20_000).max(1);
+    let (mut dirs, mut colors) = (Vec::new(), Vec::new());
+    for &(v, x, y) in picked.iter().step_by(stride) {
+        let view = &scene.views[v];
+        let cam = &view.camera;
+        let ray = cam.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+        let ray = scene.ndc.as_ref().map_or(ray, |ndc| ndc.ray_to_ndc(ray));
+        dirs.push(super::rays::to_gpu_ray(scene, &ray).dir);
+        let i = 3 * (y * cam.width as usize + x);
+        colors.push([view.image.data[i], view.image.data[i + 1], view.image.data[i + 2]]);
+    }
+    (dirs, colors)
 }
 
 impl Model {
@@ -169,8 +215,9 @@ impl Model {
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
         render_config.background = background_of(&config, scene);
+        let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background));
         let renderer = Renderer::new(gpu, render_config)?;
-        Ok(Model { config, field, occupancy, sampler, renderer, occupancy_densities: None, render_buffers: None })
+        Ok(Model { config, field, occupancy, sampler, renderer, background, occupancy_densities: None, render_buffers: None })
     }
 
     /// The model of a checkpoint, ready to render, without optimizer state: its config
@@ -184,6 +231,9 @@ impl Model {
         config.resolve_for(scene)?;
         let mut model = Model::new(gpu, scene, config)?;
         model.field.import(gpu, &ckpt.field)?;
+        if let Some(bg) = &mut model.background {
+            bg.import(&ckpt.background).map_err(|message| TrainError::Config { source_name: "checkpoint".into(), message })?;
+        }
         match &ckpt.occupancy {
             Some(density) if model.config.sampler.mode == SamplerMode::Occupancy => {
                 model.occupancy.restore_density(gpu, density)?;
@@ -302,6 +352,7 @@ impl Model {
                 let mut padded = chunk.to_vec();
                 padded.resize(RENDER_CHUNK as usize, GpuRay::default());
                 bufs.rays.write(gpu, &padded);
+                self.write_backgrounds(gpu, &padded, &bufs.render_out.aux);
                 self.sample_and_shade(gpu, &bufs, None, normals)?;
                 let mut enc = gpu.encoder();
                 self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
@@ -313,6 +364,17 @@ impl Model {
         })();
         self.render_buffers = Some(bufs);
         result
+    }
+
+    /// With a learned background, writes each ray's background colour into `aux`
+    /// (what the renderer composites behind it); nothing otherwise.
+    pub(super) fn write_backgrounds(&self, gpu: &Gpu, rays: &[GpuRay], aux: &GpuBuffer<crate::layout::RayAux>) {
+        if let Some(bg) = &self.background {
+            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| r.dir).collect();
+            let rows: Vec<crate::layout::RayAux> =
+                bg.colors(&dirs).into_iter().map(|background| crate::layout::RayAux { background, ..Default::default() }).collect();
+            aux.write(gpu, &rows);
+        }
     }
 
     /// Post-activation densities of the field at `points` (field space: world, or NDC

@@ -296,7 +296,7 @@ impl Pipeline {
         plan: &StepPlan,
         profile: &mut Option<StageTimes>,
     ) -> Result<(), TrainError> {
-        self.upload(enc.gpu(), scene, &model.config, batch, plan);
+        self.upload(enc.gpu(), scene, model, batch, plan);
         model.record_sample(enc, &self.bufs, Some(plan.jitter))?;
         end_recorded_stage(profile, enc, Stage::Sampler)?;
         model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
@@ -335,7 +335,8 @@ impl Pipeline {
     /// The host side of a batch: the random-pose rays appended (zero photometric
     /// weight), every range annealed (RegNeRF), then rays, targets (and their alpha,
     /// with random backgrounds) and the edge and depth-TV weights uploaded.
-    fn upload(&mut self, gpu: &Gpu, scene: &Scene, config: &RunConfig, batch: PixelBatch, plan: &StepPlan) {
+    fn upload(&mut self, gpu: &Gpu, scene: &Scene, model: &Model, batch: PixelBatch, plan: &StepPlan) {
+        let config = &model.config;
         if plan.reg.is_some() {
             self.edge_reg.pixel.write(gpu, &batch.reg);
         }
@@ -363,6 +364,15 @@ impl Pipeline {
         }
         self.bufs.rays.write(gpu, &rays);
         self.targets.write(gpu, &targets);
+        if self.learned_background() {
+            model.write_backgrounds(gpu, &rays, &self.bufs.render_out.aux);
+        }
+    }
+
+    /// Whether the training renderer composites the model's learned background (not
+    /// random backgrounds).
+    fn learned_background(&self) -> bool {
+        self.renderer.config().background == Background::Learned
     }
 
     /// Records the drop of capacity-cut rays, composite forward, the losses into
@@ -384,7 +394,8 @@ impl Pipeline {
             alpha,
             loaded_over: *loaded_over,
         });
-        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color);
+        let sparsity = model.config.priors.sparsity;
+        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, sparsity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
@@ -466,6 +477,9 @@ impl Pipeline {
         let sq_error = reads.add(t.sq_error.0, t.sq_error.1);
         let reg = t.reg.map(|(buffer, len)| reads.add(buffer, len));
         let aux = t.aux.map(|aux| reads.add(aux, aux.len()));
+        let background = self
+            .learned_background()
+            .then(|| (reads.add(&self.d_rays, self.n as usize), reads.add(&self.bufs.render_out.rays, self.n as usize)));
         let mut add = |term: Option<(&'a GpuBuffer<f32>, usize)>| term.map(|(buffer, len)| reads.add(buffer, len));
         LossReads {
             counts,
@@ -477,7 +491,17 @@ impl Pipeline {
             planarity: add(t.planarity),
             reprojection: add(t.reprojection),
             aux,
+            background,
         }
+    }
+
+    /// With a learned background, what its step needs from the readback of
+    /// [`Pipeline::add_loss_reads`]: the photometric rays' `dL/d rgb` and opacity.
+    pub fn background_grads(&self, back: &ReadBack, slots: &LossReads) -> Option<(Vec<[f32; 3]>, Vec<f32>)> {
+        let (d, out) = slots.background.as_ref()?;
+        let d_rgb = back.get(d).iter().map(|g| g.rgb).collect();
+        let opacity = back.get(out).iter().map(|o| o.opacity).collect();
+        Some((d_rgb, opacity))
     }
 
     /// The losses of [`Pipeline::add_loss_reads`]'s slots in `back`.
@@ -529,6 +553,8 @@ pub struct LossReads {
     planarity: Option<ReadSlot<f32>>,
     reprojection: Option<ReadSlot<f32>>,
     aux: Option<ReadSlot<RayAux>>,
+    /// With a learned background: the photometric rays' `dL/d RayOutput` and outputs.
+    background: Option<(ReadSlot<RayOutput>, ReadSlot<RayOutput>)>,
 }
 
 /// The reprojection term over batches of `n` photometric rays of `scene`, with the

@@ -46,8 +46,8 @@ use serde::Serialize;
 pub struct Args {
     /// A run directory (holding checkpoint.safetensors) or a checkpoint file.
     run: PathBuf,
-    /// Which views: test, train or all.
-    #[arg(long, default_value = "test", value_parser = ["test", "train", "all"])]
+    /// Which views: test, train, val (neither trained nor tested on) or all.
+    #[arg(long, default_value = "test", value_parser = ["test", "train", "val", "all"])]
     split: String,
     /// LPIPS networks. Default: both where the weights are installed, none (with a
     /// note) where not; asking explicitly makes missing weights an error.

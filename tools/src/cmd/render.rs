@@ -17,8 +17,9 @@ use crate::video::{self, VideoFormat};
 pub struct Args {
     /// A checkpoint file, or a run directory holding checkpoint.safetensors.
     checkpoint: PathBuf,
-    /// Which views: test, train or all.
-    #[arg(long, default_value = "test", value_parser = ["test", "train", "all"])]
+    /// Which views: test, train, val (the views the run neither trains nor tests on,
+    /// for choosing settings without the test views) or all.
+    #[arg(long, default_value = "test", value_parser = ["test", "train", "val", "all"])]
     split: String,
     /// Output directory.
     #[arg(long)]
@@ -256,13 +257,16 @@ pub fn load_run(checkpoint: &Path, scene: Option<&Path>, overrides: &[String], g
     Ok(LoadedRun { gpu, scene, model, step: ckpt.step })
 }
 
-/// The view indices of a split name: `test`, `train` or `all`.
+/// The view indices of a split name: `test`, `train`, `val` (every view in neither the
+/// training nor the test split: DTU's excluded and unused protocol views, LLFF's
+/// training-side views a sparse run leaves out) or `all`.
 pub fn split_views(scene: &Scene, split: &str) -> anyhow::Result<Vec<usize>> {
     Ok(match split {
         "test" => scene.split.test.clone(),
         "train" => scene.split.train.clone(),
+        "val" => scene.split.unused(scene.views.len()),
         "all" => (0..scene.views.len()).collect(),
-        other => bail!("unknown split {other} (test, train or all)"),
+        other => bail!("unknown split {other} (test, train, val or all)"),
     })
 }
 

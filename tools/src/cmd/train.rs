@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use edgenerf::data::Scene;
+use edgenerf::data::{LoadOptions, Scene, SceneFormat};
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::loss::RegVariant;
 use edgenerf::train::{Backend, Checkpoint, RunConfig, RunEnd, RunObserver, StepStats, TrainError, Trainer, run};
@@ -173,18 +173,19 @@ fn default_preset(args: &Args, backend: Option<Backend>) -> anyhow::Result<Optio
     let Ok(format) = edgenerf::data::detect_format(&args.input.scene) else {
         return Ok(None);
     };
-    let preset = crate::presets::sparse_preset(format);
-    match preset {
-        Some(p) => eprintln!(
-            "no --config: using the sparse-view preset {} for this {format} scene (--no-preset for the engine defaults)",
-            p.path
-        ),
-        None => eprintln!(
-            "no --config: no sparse-view preset is measured for {format} scenes, so the engine defaults (the paper's \
-             weights, unscaled) apply; tools/configs/sparse-*.toml are the measured presets"
-        ),
-    }
-    Ok(preset)
+    // nerfstudio and COLMAP captures: the layout they load as (cameras only) decides.
+    let forward_facing = matches!(format, SceneFormat::Nerfstudio | SceneFormat::Colmap) && {
+        let opts = LoadOptions { views: args.input.views, llff_factor: args.input.llff_factor, load_images: false, ..Default::default() };
+        Scene::load(&args.input.scene, &opts).is_ok_and(|s| s.ndc.is_some())
+    };
+    let preset = crate::presets::sparse_preset(format, forward_facing);
+    let layout = match format {
+        SceneFormat::Nerfstudio | SceneFormat::Colmap if forward_facing => " (forward-facing)",
+        SceneFormat::Nerfstudio | SceneFormat::Colmap => " (object-centric)",
+        _ => "",
+    };
+    eprintln!("no --config: using the sparse-view preset {} for this {format}{layout} scene (--no-preset for the engine defaults)", preset.path);
+    Ok(Some(preset))
 }
 
 pub(crate) fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
@@ -422,6 +423,14 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         trainer.model.field.n_params(),
         args.out.display()
     );
+    if let Some(bg) = &trainer.model.background {
+        let c = bg.config();
+        eprintln!(
+            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour per direction (finest map {}x{} texels, fitted first to the images' frames; render.background = {{kind = \"black\"}} for none)",
+            2 * c.finest_height,
+            c.finest_height
+        );
+    }
 
     let iters = config.train.iters;
     let bar = ProgressBar::new(iters);

@@ -138,7 +138,7 @@ fn depth_tv_end_to_end_matches_finite_differences() {
     let field_dyn: &mut dyn Field = &mut field;
     let out = FieldOutputs::new(&gpu, capacity).unwrap();
     field_dyn.forward(&gpu, &batch, &out, false).unwrap();
-    let renderer = Renderer::new(&gpu, RenderConfig { background: Background::Black, transmittance_threshold: 0.0 }).unwrap();
+    let renderer = Renderer::new(&gpu, RenderConfig { background: Background::Black, transmittance_threshold: 0.0, ..Default::default() }).unwrap();
     let render_out = RenderOutputs::new(&gpu, n_rays as u32, None).unwrap();
     let tv = DepthTv::new(&gpu, n_rays as u32).unwrap();
     tv.z_scale.write(&gpu, &z_scale);

@@ -204,7 +204,7 @@ fn end_to_end(variant: RegVariant, depth_target: DepthTarget, depth_estimate: De
     // GPU: forward with normals, composite, losses, backward to the parameters.
     let out = FieldOutputs::new(&gpu, capacity).unwrap();
     field.forward(&gpu, &batch, &out, true).unwrap();
-    let renderer = Renderer::new(&gpu, RenderConfig { background: Background::Black, transmittance_threshold: 0.0 }).unwrap();
+    let renderer = Renderer::new(&gpu, RenderConfig { background: Background::Black, transmittance_threshold: 0.0, ..Default::default() }).unwrap();
     let render_out = RenderOutputs::new(&gpu, n_rays as u32, None).unwrap();
     let reg = EdgeReg::new(&gpu, n_patches as u32).unwrap();
     reg.pixel.write(&gpu, &pixel);

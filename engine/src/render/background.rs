@@ -1,0 +1,392 @@
+//! A learned background for captures without alpha: what a ray that leaves the scene
+//! box sees, as a function of its direction, trained with the field.
+//!
+//! Photographs have no alpha: whatever lies beyond the field's box (DTU's backdrop, a
+//! room behind an object, the white a capture was composited on) must be explained by
+//! something. With a fixed black background the only explanation the field has is
+//! fog inside the box, in front of the object. [`LearnedBackground`] gives those rays
+//! a colour of their own: a multiresolution equirectangular map of the ray direction
+//! (`levels` maps of `h x 2h` texels, `h` from `finest_height / 4^(levels-1)` up to
+//! `finest_height`), whose bilinear lookups are summed and passed through a sigmoid,
+//! `bg(d) = sigmoid(sum_l bilerp(M_l, uv(d)))`. By default one coarse map of 4 x 8
+//! texels: a smooth function of direction (a dark backdrop above, a bright table
+//! below), too coarse to learn each camera's view of the object in the directions only
+//! that camera looks through. (A direction-only background cannot show parallax; what is
+//! near enough to move between views stays the field's to explain, as in Instant-NGP
+//! and nerfacto.) Before training, [`LearnedBackground::prefit`] fits it to the frames
+//! of the training images, which mostly show background in object-centric captures.
+//!
+//! The map lives on the host: the renderer reads each ray's background from
+//! [`crate::layout::RayAux::background`], which the caller fills with
+//! [`LearnedBackground::colors`] before the forward pass (`Background::Learned`), and
+//! training reads back the photometric rays' `dL/d rgb` and opacity to form the map's
+//! gradient, `dL/d bg = (1 - opacity) dL/d rgb` (the forward writes
+//! `rgb = sum w c + (1 - opacity) bg`), through the sigmoid and the bilinear weights
+//! ([`LearnedBackground::step`], Adam on the host: a few hundred thousand values).
+//!
+//! Direction to texture: `u = atan2(d.y, d.x) / 2 pi + 1/2` (wrapping), `v =
+//! acos(d.z) / pi` (clamped at the poles); texel centres at `(i + 1/2) / w`.
+//!
+//! Invariants: [`LearnedBackground::colors`] is a pure function of the parameters and
+//! the directions; the gradient of [`LearnedBackground::step`] is the exact derivative
+//! of `sum_r <g_r, bg(d_r)>` (a finite-difference test checks it).
+
+use serde::{Deserialize, Serialize};
+
+/// Settings of the learned background (`render.learned_background`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearnedBackgroundConfig {
+    /// Maps of `h x 2h` texels, the finest `finest_height` high, each coarser one a
+    /// quarter of the next.
+    pub levels: u32,
+    /// Height (latitude texels) of the finest map. The default map (one of 4 x 8
+    /// texels, 45 degrees each) is deliberately coarse: cameras around an object look
+    /// at it through directions no other camera uses, so a fine map learns each view's
+    /// image of the object as "background" (measured: docs/results/real-captures.md).
+    pub finest_height: u32,
+    /// The map's Adam learning rate is the field's schedule times this.
+    pub lr_scale: f32,
+    /// The background every direction starts at, in `(0, 1)`, where no
+    /// [`LearnedBackground::prefit`] runs (renders of a map that was never trained).
+    pub init: f32,
+}
+
+impl Default for LearnedBackgroundConfig {
+    fn default() -> Self {
+        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5 }
+    }
+}
+
+impl LearnedBackgroundConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(1..=6).contains(&self.levels) {
+            return Err(format!("render.learned_background.levels = {} must be 1 to 6", self.levels));
+        }
+        let coarsest = self.finest_height >> (2 * (self.levels - 1));
+        if !(2..=1024).contains(&self.finest_height) || coarsest < 1 {
+            return Err(format!(
+                "render.learned_background.finest_height = {} must be 2 to 1024, with at least 2 texels in the coarsest of its {} maps",
+                self.finest_height, self.levels
+            ));
+        }
+        if !(self.lr_scale.is_finite() && self.lr_scale >= 0.0) {
+            return Err(format!("render.learned_background.lr_scale = {} must be finite and >= 0", self.lr_scale));
+        }
+        if !(self.init > 0.0 && self.init < 1.0) {
+            return Err(format!("render.learned_background.init = {} must lie in (0, 1)", self.init));
+        }
+        Ok(())
+    }
+
+    /// `(height, width)` of each map, coarsest first.
+    fn sizes(&self) -> Vec<(usize, usize)> {
+        (0..self.levels)
+            .map(|l| {
+                let h = (self.finest_height >> (2 * (self.levels - 1 - l))) as usize;
+                (h, 2 * h)
+            })
+            .collect()
+    }
+}
+
+/// Adam's moment decay rates and epsilon for the map.
+const BETA1: f32 = 0.9;
+const BETA2: f32 = 0.99;
+const EPS: f32 = 1e-8;
+
+/// Checkpoint tensor names.
+pub const LOGITS: &str = "background.logits";
+const ADAM_M: &str = "background.adam_m";
+const ADAM_V: &str = "background.adam_v";
+const ADAM_T: &str = "background.adam_t";
+
+/// The learned background (see the module doc).
+#[derive(Clone, Debug)]
+pub struct LearnedBackground {
+    config: LearnedBackgroundConfig,
+    /// Per map: offset of its first texel (RGB triples) in `logits`, height, width.
+    maps: Vec<(usize, usize, usize)>,
+    /// Pre-sigmoid values, 3 per texel, the maps one after the other (row-major, `v`
+    /// rows of `u` texels).
+    logits: Vec<f32>,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: u32,
+}
+
+/// The texels and bilinear weights of one direction in one map.
+fn taps(d: [f32; 3], h: usize, w: usize) -> [(usize, f32); 4] {
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-20);
+    let z = (d[2] / len).clamp(-1.0, 1.0);
+    let u = d[1].atan2(d[0]) / std::f32::consts::TAU + 0.5;
+    let v = z.acos() / std::f32::consts::PI;
+    let x = u * w as f32 - 0.5;
+    let y = (v * h as f32 - 0.5).clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let col = |i: f32| (i as i64).rem_euclid(w as i64) as usize;
+    let (c0, c1) = (col(x0), col(x0 + 1.0));
+    let r0 = y0 as usize;
+    let r1 = (r0 + 1).min(h - 1);
+    [
+        (r0 * w + c0, (1.0 - fx) * (1.0 - fy)),
+        (r0 * w + c1, fx * (1.0 - fy)),
+        (r1 * w + c0, (1.0 - fx) * fy),
+        (r1 * w + c1, fx * fy),
+    ]
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+impl LearnedBackground {
+    /// A map at its initial colour (`config.init` everywhere). Call
+    /// [`LearnedBackgroundConfig::validate`] first.
+    pub fn new(config: LearnedBackgroundConfig) -> Self {
+        let mut maps = Vec::new();
+        let mut n = 0;
+        for (h, w) in config.sizes() {
+            maps.push((n, h, w));
+            n += h * w;
+        }
+        // The coarsest map carries the initial logit, the others start at 0.
+        let init = (config.init / (1.0 - config.init)).ln();
+        let mut logits = vec![0.0; 3 * n];
+        let (_, h0, w0) = maps[0];
+        logits[..3 * h0 * w0].fill(init);
+        Self { config, maps, logits, m: vec![0.0; 3 * n], v: vec![0.0; 3 * n], t: 0 }
+    }
+
+    pub fn config(&self) -> &LearnedBackgroundConfig {
+        &self.config
+    }
+
+    /// The pre-sigmoid value of direction `d` (need not be unit length).
+    fn logit(&self, d: [f32; 3]) -> [f32; 3] {
+        let mut s = [0.0f32; 3];
+        for &(off, h, w) in &self.maps {
+            for (texel, weight) in taps(d, h, w) {
+                let i = 3 * (off + texel);
+                for c in 0..3 {
+                    s[c] += weight * self.logits[i + c];
+                }
+            }
+        }
+        s
+    }
+
+    /// The background colour of each direction.
+    pub fn colors(&self, dirs: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        dirs.iter().map(|&d| self.logit(d).map(sigmoid)).collect()
+    }
+
+    /// The gradient of `sum_r <g_r, bg(d_r)>` with respect to the map's values.
+    pub fn gradient(&self, dirs: &[[f32; 3]], g: &[[f32; 3]]) -> Vec<f32> {
+        let mut grad = vec![0.0f32; self.logits.len()];
+        for (&d, g) in dirs.iter().zip(g) {
+            if g.iter().all(|&x| x == 0.0) {
+                continue;
+            }
+            let c = self.logit(d).map(sigmoid);
+            let dl: [f32; 3] = std::array::from_fn(|k| g[k] * c[k] * (1.0 - c[k]));
+            for &(off, h, w) in &self.maps {
+                for (texel, weight) in taps(d, h, w) {
+                    let i = 3 * (off + texel);
+                    for k in 0..3 {
+                        grad[i + k] += weight * dl[k];
+                    }
+                }
+            }
+        }
+        grad
+    }
+
+    /// One Adam step on the photometric rays of a training batch: their directions,
+    /// `dL/d rgb` and opacity (`dL/d bg = (1 - opacity) dL/d rgb`), at the field's
+    /// learning rate `lr` (times `lr_scale`). Non-finite inputs leave the map alone.
+    pub fn step(&mut self, dirs: &[[f32; 3]], d_rgb: &[[f32; 3]], opacity: &[f32], lr: f32) {
+        let g: Vec<[f32; 3]> = d_rgb.iter().zip(opacity).map(|(g, &a)| g.map(|x| x * (1.0 - a.clamp(0.0, 1.0)))).collect();
+        let grad = self.gradient(dirs, &g);
+        if !grad.iter().all(|x| x.is_finite()) {
+            return;
+        }
+        self.t += 1;
+        let lr = lr * self.config.lr_scale;
+        let (b1t, b2t) = (1.0 - BETA1.powi(self.t as i32), 1.0 - BETA2.powi(self.t as i32));
+        for i in 0..self.logits.len() {
+            self.m[i] = BETA1 * self.m[i] + (1.0 - BETA1) * grad[i];
+            self.v[i] = BETA2 * self.v[i] + (1.0 - BETA2) * grad[i] * grad[i];
+            // Texels no ray has reached keep their value (no update from zero moments).
+            if self.v[i] > 0.0 {
+                self.logits[i] -= lr * (self.m[i] / b1t) / ((self.v[i] / b2t).sqrt() + EPS);
+            }
+        }
+    }
+
+    /// Fits the map to colours seen in known directions before training: pixels that
+    /// most likely show background (the trainer passes the frames of the training
+    /// images). Every value starts from the per-channel median of `colors` (robust to
+    /// the object reaching into some frames), then `iters` Adam steps of the mean
+    /// squared error shape it by direction; the optimizer state is reset afterwards, so
+    /// training starts its own. Without this, a capture whose backdrop is uniform (white
+    /// paper, a composited background) fits it with fog from the first steps and the
+    /// background never learns it: docs/results/real-captures.md.
+    pub fn prefit(&mut self, dirs: &[[f32; 3]], colors: &[[f32; 3]], iters: u32) {
+        if dirs.is_empty() {
+            return;
+        }
+        let median = |c: usize| {
+            let mut v: Vec<f32> = colors.iter().map(|x| x[c]).collect();
+            v.sort_by(f32::total_cmp);
+            v[v.len() / 2].clamp(0.02, 0.98)
+        };
+        let init = [median(0), median(1), median(2)].map(|m| (m / (1.0 - m)).ln());
+        let (_, h0, w0) = self.maps[0];
+        self.logits.fill(0.0);
+        for texel in self.logits[..3 * h0 * w0].chunks_mut(3) {
+            texel.copy_from_slice(&init);
+        }
+        let lr = 0.05 / self.config.lr_scale.max(1e-6);
+        for _ in 0..iters {
+            let c = self.colors(dirs);
+            let n = dirs.len() as f32;
+            let g: Vec<[f32; 3]> = c.iter().zip(colors).map(|(c, t)| std::array::from_fn(|k| 2.0 * (c[k] - t[k]) / n)).collect();
+            self.step(dirs, &g, &vec![0.0; dirs.len()], lr);
+        }
+        self.m.fill(0.0);
+        self.v.fill(0.0);
+        self.t = 0;
+    }
+
+    /// The map and its optimizer state as named arrays (for checkpoints).
+    pub fn export(&self) -> Vec<(String, Vec<f32>)> {
+        vec![
+            (LOGITS.into(), self.logits.clone()),
+            (ADAM_M.into(), self.m.clone()),
+            (ADAM_V.into(), self.v.clone()),
+            (ADAM_T.into(), vec![self.t as f32]),
+        ]
+    }
+
+    /// Restores [`LearnedBackground::export`]'s arrays; an error names what does not fit.
+    pub fn import(&mut self, arrays: &[(String, Vec<f32>)]) -> Result<(), String> {
+        let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, d)| d);
+        let n = self.logits.len();
+        for (name, target) in [(LOGITS, &mut self.logits), (ADAM_M, &mut self.m), (ADAM_V, &mut self.v)] {
+            let data = get(name).ok_or_else(|| format!("no {name} tensor (the run's config has a learned background)"))?;
+            if data.len() != n {
+                return Err(format!("{name} holds {} values, the configured maps {n}", data.len()));
+            }
+            if !data.iter().all(|x| x.is_finite()) {
+                return Err(format!("{name} holds non-finite values"));
+            }
+            target.copy_from_slice(data);
+        }
+        self.t = get(ADAM_T).and_then(|t| t.first()).map_or(0, |&t| t.max(0.0) as u32);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trained_map() -> LearnedBackground {
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 2, finest_height: 8, ..Default::default() });
+        // Non-trivial values everywhere.
+        for (i, x) in bg.logits.iter_mut().enumerate() {
+            *x = ((i * 7919) % 23) as f32 / 23.0 - 0.5;
+        }
+        bg
+    }
+
+    fn dirs() -> Vec<[f32; 3]> {
+        vec![[0.3, -0.2, 0.9], [-1.0, 0.1, -0.2], [0.0, 0.0, 1.0], [0.2, 0.5, -3.0], [-0.7, -0.7, 0.05]]
+    }
+
+    #[test]
+    fn starts_at_its_initial_colour_everywhere() {
+        let bg = LearnedBackground::new(LearnedBackgroundConfig { init: 0.8, ..Default::default() });
+        for c in bg.colors(&dirs()) {
+            for x in c {
+                assert!((x - 0.8).abs() < 1e-5, "{x}");
+            }
+        }
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let bg = trained_map();
+        let d = dirs();
+        let g: Vec<[f32; 3]> = (0..d.len()).map(|r| [0.3 + r as f32 * 0.1, -0.5, 0.2 * r as f32]).collect();
+        let loss = |b: &LearnedBackground| -> f64 {
+            b.colors(&d).iter().zip(&g).map(|(c, g)| (0..3).map(|k| c[k] as f64 * g[k] as f64).sum::<f64>()).sum()
+        };
+        let grad = bg.gradient(&d, &g);
+        let mut checked = 0;
+        for i in 0..bg.logits.len() {
+            let eps = 1e-2;
+            let (mut plus, mut minus) = (bg.clone(), bg.clone());
+            plus.logits[i] += eps;
+            minus.logits[i] -= eps;
+            let fd = (loss(&plus) - loss(&minus)) / (2.0 * eps as f64);
+            assert!((fd - grad[i] as f64).abs() < 1e-4 + 1e-3 * fd.abs(), "value {i}: fd {fd} analytic {}", grad[i]);
+            checked += (grad[i] != 0.0) as usize;
+        }
+        assert!(checked >= 20, "only {checked} values carry gradient");
+    }
+
+    #[test]
+    fn training_moves_the_seen_directions_to_the_target() {
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig::default());
+        let d = dirs();
+        let target = [1.0, 1.0, 1.0];
+        for _ in 0..300 {
+            let c = bg.colors(&d);
+            // d/d rgb of the mean squared error with opacity 0: the background is the colour.
+            let g: Vec<[f32; 3]> = c.iter().map(|c| std::array::from_fn(|k| 2.0 * (c[k] - target[k]))).collect();
+            bg.step(&d, &g, &vec![0.0; d.len()], 0.05);
+        }
+        for c in bg.colors(&d) {
+            assert!(c.iter().all(|&x| x > 0.95), "{c:?}");
+        }
+        // An opaque ray teaches the background nothing.
+        let mut opaque = LearnedBackground::new(LearnedBackgroundConfig::default());
+        opaque.step(&d, &vec![[1.0; 3]; d.len()], &vec![1.0; d.len()], 0.05);
+        assert!(opaque.colors(&d).iter().all(|c| c.iter().all(|&x| (x - 0.5).abs() < 1e-6)));
+    }
+
+    #[test]
+    fn prefit_takes_the_median_and_shapes_it_by_direction() {
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 1, finest_height: 4, ..Default::default() });
+        // Upward directions see black, downward ones white; one odd colour does not move the start.
+        let mut dirs = Vec::new();
+        let mut colors = Vec::new();
+        for i in 0..200 {
+            let a = i as f32 * 0.1;
+            let up = i % 2 == 0;
+            dirs.push([a.cos(), a.sin(), if up { 0.9 } else { -0.9 }]);
+            colors.push(if up { [0.05; 3] } else { [0.95; 3] });
+        }
+        dirs.push([1.0, 0.0, 0.0]);
+        colors.push([1.0, 0.0, 0.0]);
+        bg.prefit(&dirs, &colors, 300);
+        let c = bg.colors(&[[0.0, 0.3, 1.0], [0.3, 0.0, -1.0]]);
+        assert!(c[0].iter().all(|&x| x < 0.2) && c[1].iter().all(|&x| x > 0.8), "{c:?}");
+        assert_eq!((bg.t, bg.m.iter().all(|&m| m == 0.0)), (0, true), "optimizer state reset");
+    }
+
+    #[test]
+    fn export_and_import_round_trip() {
+        let mut bg = trained_map();
+        bg.step(&dirs(), &vec![[0.1, -0.2, 0.3]; 5], &vec![0.2; 5], 0.01);
+        let mut restored = LearnedBackground::new(*bg.config());
+        restored.import(&bg.export()).unwrap();
+        assert_eq!(restored.colors(&dirs()), bg.colors(&dirs()));
+        assert_eq!((restored.m.clone(), restored.v.clone(), restored.t), (bg.m.clone(), bg.v.clone(), bg.t));
+        let mut other = LearnedBackground::new(LearnedBackgroundConfig::default());
+        assert!(other.import(&bg.export()).unwrap_err().contains("background.logits"));
+    }
+}
