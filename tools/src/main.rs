@@ -66,9 +66,13 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             // The chain of causes, one per line; no backtrace (users act on the message).
-            eprintln!("error: {e}");
+            // Write errors ignored: after SIGHUP the terminal may be gone (eprintln!
+            // would panic).
+            use std::io::Write;
+            let mut err = std::io::stderr().lock();
+            let _ = writeln!(err, "error: {e}");
             for cause in e.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
+                let _ = writeln!(err, "  caused by: {cause}");
             }
             std::process::ExitCode::FAILURE
         }

@@ -219,6 +219,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
     }
     let title = if args.quick { format!("{name}-quick") } else { name.clone() };
     let out = args.out.clone().unwrap_or_else(|| repo.join("runs/bench").join(&title));
+    crate::output::refuse_file(&out, "--out")?;
     std::fs::create_dir_all(out.join("runs")).with_context(|| format!("creating {}", out.display()))?;
     let runs = suite.runs(&repo, args.repeats, &out.join("gt-edges"))?;
     let sweep = Sweep {
