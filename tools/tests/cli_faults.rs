@@ -28,18 +28,43 @@ fn logged_steps(run: &Path) -> Vec<u64> {
     common::read_log(run).1.iter().map(|r| r[0] as u64).collect()
 }
 
+/// A child process killed when dropped (a failed assertion must not leave a
+/// 100000-step run behind).
+struct Run(Option<Child>);
+
+impl Run {
+    fn child(&mut self) -> &mut Child {
+        self.0.as_mut().unwrap()
+    }
+
+    fn wait_with_output(mut self) -> std::process::Output {
+        self.0.take().unwrap().wait_with_output().unwrap()
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        if let Some(c) = &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
 /// A `train` of the demo config on `scene` into `run` that runs until stopped
 /// (100000 steps, no periodic checkpoint unless `extra` sets one), output piped.
-fn spawn_long_run(scene: &Path, run: &Path, extra: &[&str]) -> Child {
+fn spawn_long_run(scene: &Path, run: &Path, extra: &[&str]) -> Run {
     let demo = repo().join("tools/configs/demo.toml");
-    common::command()
-        .args(["train", s(scene), "--out", s(run), "--config", s(&demo)])
-        .args(["--iters", "100000", "--set", "sampler.steps_per_diagonal=48", "--no-eval"])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
+    Run(Some(
+        common::command()
+            .args(["train", s(scene), "--out", s(run), "--config", s(&demo)])
+            .args(["--iters", "100000", "--set", "sampler.steps_per_diagonal=48", "--no-eval"])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ))
 }
 
 /// A short finished run of the demo config (`iters` steps, no evaluation).
@@ -54,7 +79,8 @@ fn short_run(scene: &Path, run: &Path, iters: u32, extra: &[&str]) {
 }
 
 /// Waits until `run` has logged `n` steps (10 minutes at most: a first run compiles kernels).
-fn wait_rows(run: &Path, n: usize, child: &mut Child) {
+fn wait_rows(run: &Path, n: usize, child: &mut Run) {
+    let child = child.child();
     let start = Instant::now();
     while rows(run) < n {
         if let Some(status) = child.try_wait().unwrap() {
@@ -65,8 +91,9 @@ fn wait_rows(run: &Path, n: usize, child: &mut Child) {
     }
 }
 
-fn signal(child: &Child, sig: &str) {
-    assert!(std::process::Command::new("kill").args([sig, &child.id().to_string()]).status().unwrap().success());
+fn signal(child: &mut Run, sig: &str) {
+    let pid = child.child().id().to_string();
+    assert!(std::process::Command::new("kill").args([sig, &pid]).status().unwrap().success());
 }
 
 /// SIGTERM (what `timeout` and cluster schedulers send) and SIGHUP (a closed terminal)
@@ -80,8 +107,8 @@ fn sigterm_and_sighup_save_a_checkpoint_that_resume_continues() {
         let run = out.path().join(format!("run{sig}"));
         let mut child = spawn_long_run(&turntable(), &run, &["--set", "train.checkpoint_every=0"]);
         wait_rows(&run, 2, &mut child);
-        signal(&child, sig);
-        let o = child.wait_with_output().unwrap();
+        signal(&mut child, sig);
+        let o = child.wait_with_output();
         let t = text(&o);
         assert!(o.status.code() == Some(1) && t.contains("interrupted at step") && t.contains("--resume"), "{sig}: {:?}\n{t}", o.status);
         let steps = rows(&run);
@@ -96,18 +123,15 @@ fn sigterm_and_sighup_save_a_checkpoint_that_resume_continues() {
 }
 
 /// Waits until one of `children` exits (`secs` at most) and returns its index.
-fn first_to_exit(children: &mut [Child], secs: u64) -> usize {
+fn first_to_exit(children: &mut [Run], secs: u64) -> usize {
     let start = Instant::now();
     loop {
         for (i, c) in children.iter_mut().enumerate() {
-            if c.try_wait().unwrap().is_some() {
+            if c.child().try_wait().unwrap().is_some() {
                 return i;
             }
         }
         if start.elapsed().as_secs() > secs {
-            for c in children.iter_mut() {
-                let _ = c.kill();
-            }
             panic!("neither of two runs into one directory was refused within {secs} s");
         }
         std::thread::sleep(Duration::from_millis(100));
@@ -130,13 +154,13 @@ fn two_runs_into_one_directory_one_is_refused_and_a_killed_run_leaves_no_lock() 
     let loser = first_to_exit(&mut children, 120);
     let winner = 1 - loser;
     let mut survivor = children.remove(winner);
-    let o = children.remove(0).wait_with_output().unwrap();
+    let o = children.remove(0).wait_with_output();
     let t = text(&o);
-    assert!(o.status.code() == Some(1) && t.contains("is in use") && t.contains("another edgenerf process"), "{t}");
+    assert!(o.status.code() == Some(1) && t.contains("is in use") && t.contains("is training into it"), "{t}");
 
     wait_rows(&run, 4, &mut survivor);
-    signal(&survivor, "-KILL");
-    let _ = survivor.wait_with_output().unwrap();
+    signal(&mut survivor, "-KILL");
+    let _ = survivor.wait_with_output();
     // The kill released the lock (the kernel drops a flock with its process).
     let iters = (rows(&run) + 2).to_string();
     let o = edgenerf(&["train", s(&scenes[winner]), "--out", s(&run), "--resume", "--iters", &iters, "--no-eval"]);
