@@ -396,3 +396,27 @@ fn another_scene_is_refused_and_rays_that_miss_the_box_stop_the_run() {
     assert!(!o.status.success() && t.contains("no ray entered the scene's box"), "{t}");
     assert!(rows(&out.path().join("run-away")) < 10, "stopped within a few steps:\n{t}");
 }
+
+/// A bench suite with `repeats = 0` is refused (it ran each run once), and a sweep
+/// whose only run failed exits non-zero (it exited 0).
+#[test]
+fn bench_refuses_zero_repeats_and_fails_when_no_run_finished() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = |name: &str, extra: &str| {
+        let path = dir.path().join(format!("{name}.toml"));
+        let text = format!(
+            "scenes = [\"synthetic-scenes/small/turntable\"]\nbase_config = \"tools/configs/demo.toml\"\niters = 1\n{extra}\n\
+             [[config]]\nname = \"broken\"\nset = {{ \"train.no_such_key\" = 1 }}\n"
+        );
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let zero = suite("zero", "repeats = 0");
+    let o = edgenerf(&["bench", s(&zero), "--out", s(&dir.path().join("out0")), "--lpips", "none"]);
+    assert!(!o.status.success() && text(&o).contains("repeats = 0"), "{}", text(&o));
+    let failing = suite("failing", "");
+    let o = edgenerf(&["bench", s(&failing), "--out", s(&dir.path().join("out1")), "--lpips", "none"]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("no run of the suite finished"), "{t}");
+    assert!(dir.path().join("out1/report.md").is_file(), "the report is still written:\n{t}");
+}
