@@ -78,3 +78,18 @@ pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> Result<(), TrainE
     png(viz::grey_image(w, h, &r.opacity), "opacity.png")?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    /// A write that fails leaves no `.partial` file behind (a full disk kept one).
+    #[test]
+    fn a_failed_write_leaves_no_partial_file() {
+        let dir = tempfile::tempdir().unwrap();
+        // The rename fails: a directory that is not empty stands at the final name.
+        let target = dir.path().join("metrics.json");
+        std::fs::create_dir_all(target.join("x")).unwrap();
+        assert!(super::write_atomic(&target, b"{}").is_err());
+        assert!(!dir.path().join("metrics.json.partial").exists());
+        assert!(target.join("x").is_dir(), "what stood there is untouched");
+    }
+}
