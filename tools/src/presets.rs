@@ -5,7 +5,7 @@
 //! preset run without `--config` and one with `--config tools/configs/NAME` run the
 //! same configuration. The choice is by scene format only: LLFF gets `sparse-llff.toml`,
 //! DTU `sparse-dtu.toml`, Blender-format scenes `sparse-small.toml` (the measured
-//! defaults: README, "Edge-guided regularization"); nerfstudio and COLMAP scenes, for
+//! defaults: docs/guide/presets.md); nerfstudio and COLMAP scenes, for
 //! which no preset has been measured, keep the engine defaults.
 
 use edgenerf::data::SceneFormat;
