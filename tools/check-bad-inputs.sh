@@ -598,6 +598,14 @@ python3 ckpt_tool.py huge run/checkpoint.safetensors run-huge/checkpoint.safeten
 GUARD=run-huge/checkpoint.safetensors run_case error "training diverged" "train: --resume of a checkpoint holding weights of -8e37" -- "$bin" train base --out run-huge --resume --iters 5 --no-eval
 blender b-away "[m[i].__setitem__(j, -m[i][j]) for f in t['frames'] for m in [f['transform_matrix']] for i in range(3) for j in (0, 2)]"
 run_case error "no ray entered" "train: cameras that all look away from the scene" -- "$bin" train b-away --out run-away --views 3 --iters 50 --no-eval --config "$demo"
+blender b-samepose "[f.__setitem__('transform_matrix', t['frames'][0]['transform_matrix']) for f in t['frames']]"
+run_case error "the same camera pose" "train: every training camera at one pose" -- "$bin" train b-samepose --out run-samepose "${FAST[@]}"
+blender b-clear "
+import struct, zlib
+def chunk(k, d): return struct.pack('>I', len(d)) + k + d + struct.pack('>I', zlib.crc32(k + d))
+png = b'\\x89PNG\\r\\n\\x1a\\n' + chunk(b'IHDR', struct.pack('>IIBBBBB', 128, 128, 8, 6, 0, 0, 0)) + chunk(b'IDAT', zlib.compress(b''.join(b'\\0' + b'\\xff\\xff\\xff\\0' * 128 for _ in range(128)))) + chunk(b'IEND', b'')
+[open(os.path.join(r, 'train', n), 'wb').write(png) for n in os.listdir(os.path.join(r, 'train')) if n.endswith('.png') and not n.endswith('_mask.png')]"
+run_case error "fully transparent" "train: every training image fully transparent (alpha 0)" -- "$bin" train b-clear --out run-clear "${FAST[@]}"
 TEST=1 blender b-test0
 python3 -c 'import json; p="b-test0/transforms_test.json"; t=json.load(open(p)); t["frames"]=[]; json.dump(t, open(p, "w"))'
 "$bin" train b-test0 --out run-test0 "${FAST[@]}" >run-test0.log 2>&1 || echo "fixture run-test0 failed" >&2

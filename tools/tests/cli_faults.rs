@@ -420,3 +420,40 @@ fn bench_refuses_zero_repeats_and_fails_when_no_run_finished() {
     assert!(!o.status.success() && t.contains("no run of the suite finished"), "{t}");
     assert!(dir.path().join("out1/report.md").is_file(), "the report is still written:\n{t}");
 }
+
+/// Training views that cannot teach anything are refused before training (they trained
+/// and exited 0): every camera at one pose, every image fully transparent.
+#[test]
+fn identical_poses_and_transparent_images_are_refused() {
+    let out = tempfile::tempdir().unwrap();
+    let demo = repo().join("tools/configs/demo.toml");
+    let train = |scene: &Path| {
+        let o = edgenerf(&["train", s(scene), "--out", s(&scene.with_extension("run")), "--config", s(&demo), "--iters", "3", "--no-eval"]);
+        (o.status.success(), text(&o))
+    };
+    let same = out.path().join("same");
+    copy_scene(&turntable(), &same);
+    let path = same.join("transforms_train.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let first = t["frames"][0]["transform_matrix"].clone();
+    for f in t["frames"].as_array_mut().unwrap() {
+        f["transform_matrix"] = first.clone();
+    }
+    std::fs::write(&path, t.to_string()).unwrap();
+    let (ok, t) = train(&same);
+    assert!(!ok && t.contains("the same camera pose"), "{t}");
+
+    let clear = out.path().join("clear");
+    copy_scene(&turntable(), &clear);
+    for e in std::fs::read_dir(clear.join("train")).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_str().unwrap().to_string();
+        if name.ends_with(".png") && !name.ends_with("_mask.png") {
+            let mut img = image::open(&p).unwrap().to_rgba8();
+            img.pixels_mut().for_each(|px| px.0[3] = 0);
+            img.save(&p).unwrap();
+        }
+    }
+    let (ok, t) = train(&clear);
+    assert!(!ok && t.contains("fully transparent"), "{t}");
+}

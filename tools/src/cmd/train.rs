@@ -217,6 +217,30 @@ fn check_test_views(args: &Args, scene: &Scene) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Training views that cannot teach a field anything are refused before any work
+/// (they trained with 0 samples or on empty targets and exited 0): every training
+/// camera at one and the same pose, or every training image fully transparent.
+fn check_training_views(scene: &Scene) -> anyhow::Result<()> {
+    let train: Vec<&edgenerf::data::View> = scene.split.train.iter().map(|&v| &scene.views[v]).collect();
+    if train.len() >= 2 && train.iter().all(|v| v.camera.c2w.abs_diff_eq(train[0].camera.c2w, 1e-6)) {
+        bail!(
+            "every training view of {} ({}) has the same camera pose, so no depth can be learned from them; check \
+             the poses (transform_matrix) of its frames",
+            scene.root.display(),
+            train.len()
+        );
+    }
+    let transparent = |v: &&edgenerf::data::View| v.alpha.as_ref().is_some_and(|a| a.iter().all(|&x| x == 0.0));
+    if !train.is_empty() && train.iter().all(transparent) {
+        bail!(
+            "every training image of {} is fully transparent (alpha 0 in every pixel), so there is nothing to \
+             learn; check the images' alpha channel (an export that dropped the object?)",
+            scene.root.display()
+        );
+    }
+    Ok(())
+}
+
 /// What a run writes into its directory; any of them there means the directory holds a
 /// run (an empty directory, or one holding only other files such as a suite's
 /// `train.log`, is free).
@@ -466,12 +490,14 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         ckpt.config.scene.path = resumed_scene(&args, &ckpt.config.scene.path)?;
         let scene = load_scene(&ckpt.config)?;
         check_test_views(&args, &scene)?;
+        check_training_views(&scene)?;
         let masks = edge_masks(&args, &ckpt.config, &scene)?;
         Trainer::resume(gpu, scene, ckpt, masks).with_context(|| format!("resuming from {}", ckpt_path.display()))?
     } else {
         let config = config.expect("built above without --resume");
         let scene = load_scene(&config)?;
         check_test_views(&args, &scene)?;
+        check_training_views(&scene)?;
         let masks = edge_masks(&args, &config, &scene)?;
         Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
