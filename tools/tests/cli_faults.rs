@@ -457,3 +457,45 @@ fn identical_poses_and_transparent_images_are_refused() {
     let (ok, t) = train(&clear);
     assert!(!ok && t.contains("fully transparent"), "{t}");
 }
+
+/// A write that fails (here: a file-size limit, as a full disk fails it) is said to be
+/// a failed write of the output, not a bad input ("bad OpenEXR file ...: No space left
+/// on device"), leaves no `.partial` file, and a `--out` that `render` created and
+/// could not write into is removed again (a failed render left an empty --out).
+#[cfg(unix)]
+#[test]
+fn a_failed_write_names_the_output_and_leaves_nothing_behind() {
+    use std::os::unix::process::CommandExt;
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    short_run(&turntable(), &run, 1, &[]);
+    // `limit` bytes per file; SIGXFSZ ignored, so a write past it fails with EFBIG.
+    let render = |dest: &Path, split: &str, limit: u64| {
+        let mut c = common::command();
+        c.args(["render", s(&run), "--split", split, "--out", s(dest)]);
+        // SAFETY: only async-signal-safe calls between fork and exec.
+        unsafe {
+            c.pre_exec(move || {
+                libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+                let lim = libc::rlimit { rlim_cur: limit, rlim_max: libc::RLIM_INFINITY };
+                if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let o = c.output().unwrap();
+        (o.status.success(), text(&o))
+    };
+    // Nothing fits: the first image fails, the new --out is gone again.
+    let empty = out.path().join("r-empty");
+    let (ok, t) = render(&empty, "train", 100);
+    assert!(!ok && t.contains("writing this output failed") && t.contains("free space"), "{t}");
+    assert!(!empty.exists(), "an empty --out was left:\n{t}");
+    // The images fit, the depth EXR (64 KB) does not.
+    let part = out.path().join("r-part");
+    let (ok, t) = render(&part, "train", 40_000);
+    assert!(!ok && t.contains("_depth.exr") && t.contains("writing this output failed") && !t.contains("bad OpenEXR"), "{t}");
+    let partial: Vec<_> = snapshot(&part).into_keys().filter(|p| p.to_string_lossy().ends_with(".partial")).collect();
+    assert!(partial.is_empty(), "{partial:?}");
+}
