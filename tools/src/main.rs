@@ -51,6 +51,9 @@ enum Command {
     /// Synthetic ground-truth scenes (Mitsuba): render them.
     #[command(subcommand)]
     Scenes(cmd::scenes::Command),
+    /// A local web viewer of a run: orbit the scene (RGB, depth, normals, opacity),
+    /// dataset views beside their ground truth, loss curves; follows a run in progress.
+    View(cmd::view::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -91,5 +94,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(c) => cmd::export::run(c, &gpu_opts),
         Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
+        Command::View(args) => cmd::view::run(args, &gpu_opts),
     }
 }
