@@ -1,5 +1,6 @@
 //! End-to-end training on a committed synthetic scene (lavapipe): test PSNR rises well
-//! above the untrained model's, checkpoints round-trip and resume, a non-finite
+//! above the untrained model's, with the hash grid and with the MLP backend,
+//! checkpoints round-trip and resume, a non-finite
 //! loss stops training without touching the parameters, and the edge-guided
 //! regularizers lower what they penalize on 3-view patch batches, as do RegNeRF's depth TV
 //! and the edge-guided planarity term.
@@ -14,29 +15,34 @@ fn scene_dir(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("synthetic-scenes/small").join(name)
 }
 
+/// What every engine test's configuration shares: a coarse occupancy grid and
+/// marching step for the 128x128 scenes, single pixels, no regularizers (see the
+/// edge-guided tests below).
+const ENGINE_TEST_SETTINGS: [&str; 5] =
+    ["sampler.resolution=32", "sampler.step_size=0.02", "train.batch=pixels", "reg.depth=false", "reg.normal=false"];
+
+/// `base` with [`ENGINE_TEST_SETTINGS`], then `settings`, on committed scene `scene`.
+fn configured(mut base: RunConfig, scene: &str, iters: u64, settings: &[&str]) -> RunConfig {
+    base.scene.path = scene_dir(scene);
+    for s in ENGINE_TEST_SETTINGS.iter().chain(settings) {
+        base.set(s).unwrap();
+    }
+    base.train.iters = iters;
+    base
+}
+
 /// A configuration small enough for a few seconds per dozen steps on 2 CPU cores.
 fn tiny_config(scene: &str, iters: u64) -> RunConfig {
-    let mut c = RunConfig::default();
-    c.scene.path = scene_dir(scene);
-    for s in [
+    let grid = [
         "field.n_levels=6",
         "field.log2_hashmap_size=14",
         "field.finest_resolution=256",
         "field.hidden_width=32",
-        "sampler.resolution=32",
-        "sampler.step_size=0.02",
         "train.rays_per_batch=1024",
         "train.max_samples=65536",
         "optim.schedule.warmup_steps=10",
-        // Engine tests: single pixels, no regularizers (see the edge-guided tests below).
-        "train.batch=pixels",
-        "reg.depth=false",
-        "reg.normal=false",
-    ] {
-        c.set(s).unwrap();
-    }
-    c.train.iters = iters;
-    c
+    ];
+    configured(RunConfig::default(), scene, iters, &grid)
 }
 
 /// Compares named parameter arrays regardless of order, reporting the first difference.
@@ -87,6 +93,56 @@ fn training_raises_test_psnr_well_above_untrained() {
     let r = &renders[0].1;
     assert!(r.opacity.iter().all(|a| (0.0..=1.0 + 1e-4).contains(a)));
     assert!(r.depth.iter().all(|d| d.is_finite()));
+}
+
+/// PSNR of test view `view` rendered at `size x size` against its image area-averaged
+/// to that size: the test PSNR at a fraction of the pixels, cheap enough to take before
+/// and after training a slow backend on a CPU.
+fn downscaled_test_psnr(trainer: &mut Trainer, view: usize, size: u32) -> f64 {
+    let v = &trainer.scene.views[view];
+    let cam = v.camera.resized(size, size);
+    let target = edgenerf::data::resample::resize_area(&v.image.data, 3, (v.image.width, v.image.height), (size, size));
+    let gpu = trainer.gpu.clone();
+    let r = trainer.model.render_camera(&gpu, &trainer.scene, &cam).unwrap();
+    let se: f64 = r.rgb.iter().flatten().zip(&target).map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2)).sum();
+    -10.0 * (se / target.len() as f64).log10()
+}
+
+/// The MLP backend (a small mip-NeRF network with RegNeRF's optimizer at a constant
+/// learning rate) trains end to end through the same sampler, renderer and trainer as
+/// the grid: test PSNR rises well above the untrained network's. The project compares
+/// the two backends, so neither may silently stop learning. (The test 65b4a10 removed,
+/// made cheaper: 60 steps instead of 100 at a learning rate that does not decay, and
+/// the test view scored at 32x32 instead of 128x128, whose two renders through the MLP
+/// took most of its time on 2 CPU cores.)
+#[test]
+fn mlp_backend_raises_test_psnr_above_untrained() {
+    use edgenerf::train::Backend;
+    const ITERS: u64 = 60;
+    let mlp = [
+        "mlp.depth=3",
+        "mlp.width=32",
+        "mlp.skip_layer=2",
+        "mlp.color_width=16",
+        "mlp.pos_max_deg=8",
+        "train.rays_per_batch=256",
+        "train.max_samples=16384",
+        "optim.schedule.lr_init=0.005",
+        "optim.schedule.lr_final=0.005",
+        "optim.schedule.lr_delay_steps=10",
+    ];
+    let config = configured(RunConfig::defaults_for(Backend::Mlp), "smooth", ITERS, &mlp);
+    let scene = load(&config);
+    let view = scene.split.test[0];
+    let mut trainer = Trainer::new(test_gpu(false), scene, config).unwrap();
+    assert_eq!(trainer.model.field.kind(), "mlp");
+    let before = downscaled_test_psnr(&mut trainer, view, 32);
+    let stats = (0..ITERS).map(|_| trainer.step().unwrap()).last().unwrap();
+    let after = downscaled_test_psnr(&mut trainer, view, 32);
+    eprintln!("mlp: untrained {before:.2} dB -> trained {after:.2} dB after {ITERS} steps ({:.1} samples/ray)", stats.samples_per_ray);
+    // Measured on lavapipe: 15.43 -> 20.20 dB (40 steps: 17.95; with the learning rate
+    // decaying over the 60 steps: 17.00).
+    assert!(after > before + 2.5, "{before:.2} -> {after:.2}");
 }
 
 #[test]

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Runs the edgenerf binary against bad and edge-case inputs (issue 16: broken scenes,
 # cameras and NumPy files, bad configs and flags, run directories that must not be
-# lost) and prints one table row per input with its exit code and outcome:
+# lost; issue 52: two runs into one directory, kill -9, SIGTERM and SIGHUP, outputs
+# aimed at a scene, damaged checkpoints, another scene, cameras that miss the scene)
+# and prints one table row per input with its exit code and outcome:
 #   clear error  the input is refused and the message says what the case expects
 #   weak error   refused, but the message lacks that (vague, or names the wrong thing)
 #   accepted     a bad input the binary took and ran with
@@ -168,6 +170,40 @@ elif cmd == "safetensors_foreign":  # a valid safetensors file that is not a che
     open(sys.argv[2], "wb").write(struct.pack("<Q", len(header)) + header + struct.pack("<f", 1.0))
 PY
 
+# ckpt_tool: edits of a checkpoint (safetensors) as a damaged disk, a careless tool or a
+# hand would make them. OP: flip (one byte of a field tensor), reshape (a 2-D field
+# tensor's shape reversed, its record left), edit-config (another seed), huge (the first
+# weight of each field tensor set to -7.96e37, checksums recomputed: the gradient's norm
+# overflows while every value is finite).
+cat >ckpt_tool.py <<'PY'
+import json, struct, sys, zlib
+op, src, dst = sys.argv[1:4]
+b = open(src, "rb").read()
+n = struct.unpack("<Q", b[:8])[0]
+h = json.loads(b[8:8 + n]); data = bytearray(b[8 + n:])
+meta = h["__metadata__"]
+name = next(k for k, v in h.items() if k.startswith("field.") and (op != "reshape" or (len(v["shape"]) == 2 and v["shape"][0] != v["shape"][1])))
+t = h[name]; o0, o1 = t["data_offsets"]
+if op == "flip":
+    data[o0 + 2] ^= 0x40
+elif op == "reshape":
+    t["shape"] = t["shape"][::-1]
+elif op == "edit-config":
+    c = json.loads(meta["config"]); c["train"]["seed"] = 12345; meta["config"] = json.dumps(c)
+elif op == "huge":
+    rec = json.loads(meta["tensors"])
+    for k, v in h.items():
+        if not k.startswith("field."):
+            continue
+        a0, a1 = v["data_offsets"]
+        data[a0:a0 + 4] = struct.pack("<f", -7.96e37)
+        shape = b"".join(struct.pack("<Q", d) for d in v["shape"])
+        rec[k]["crc32"] = zlib.crc32(k.encode() + b"\0" + shape + bytes(data[a0:a1]))
+    meta["tensors"] = json.dumps(rec)
+hb = json.dumps(h).encode(); hb += b" " * (-len(hb) % 8)
+open(dst, "wb").write(struct.pack("<Q", len(hb)) + hb + bytes(data))
+PY
+
 llff() { # llff NAME [variant] [folder]: 3 poses, images in images_8 (or the folder given)
     rm -rf "$1"; mkdir -p "$1/${3:-images_8}"
     for i in 0 1 2; do cp "$creases/train/r_00$i.png" "$1/${3:-images_8}/img$i.png"; done
@@ -228,11 +264,12 @@ run_case() {
     if [ -n "${ONLY:-}" ] && ! [[ $desc =~ $ONLY ]]; then return; fi
     n=$((n + 1))
     local before="" after="" rc out outcome msg
-    [ -n "${GUARD:-}" ] && before=$(find "$GUARD" -type f -exec sha256sum {} + 2>/dev/null | sort | sha256sum)
+    # train.lock is left out: each run that takes a run directory's lock writes its pid there.
+    [ -n "${GUARD:-}" ] && before=$(find "$GUARD" -type f ! -name train.lock -exec sha256sum {} + 2>/dev/null | sort | sha256sum)
     out="$work/case-$n.log"
     timeout -k 10 "$timeout_s" "$@" >"$out" 2>&1 </dev/null
     rc=$?
-    [ -n "${GUARD:-}" ] && after=$(find "$GUARD" -type f -exec sha256sum {} + 2>/dev/null | sort | sha256sum)
+    [ -n "${GUARD:-}" ] && after=$(find "$GUARD" -type f ! -name train.lock -exec sha256sum {} + 2>/dev/null | sort | sha256sum)
     if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then
         outcome="hang"
     elif LC_ALL=C grep -qE "panicked at|stack backtrace" "$out" || { [ $rc -gt 128 ] && [ "$kind" != pipe ]; }; then
@@ -493,7 +530,7 @@ blender moved
 mv moved moved-away
 run_case error "--scene" "render: the run's scene was moved away" -- "$bin" render run-moved --out r-moved --split train
 run_case error "no test views" "render: --split test of a scene without test views" -- "$bin" render run --out r-notest --split test
-run_case error "no view" "eval: --split test of a scene without test views" -- "$bin" eval run --out e-notest --lpips none
+run_case error "no test views" "eval: --split test of a scene without test views" -- "$bin" eval run --out e-notest --lpips none
 run_case error "fetch-weights" "eval: --lpips vgg without the weights" -- env EDGENERF_LPIPS_WEIGHTS="$work/no-weights" "$bin" eval run --split train --lpips vgg --out e-lpips
 
 # Edge maps
@@ -512,27 +549,88 @@ run_case error "repeats" "bench: --repeats 0" -- "$bin" bench geometry --quick -
 run_case error "steps" "speed: --steps 0" -- "$bin" speed --preset demo --steps 0 --warmup 0 --out speed-0
 run_case pipe "" "info piped into head -c 1 (stdout closed early)" -- bash -c "'$bin' info base --no-gpu | head -c 1 >/dev/null"
 
-# Ctrl-C during training: a checkpoint at the step reached, nothing lost.
-if [ -z "${ONLY:-}" ] || [[ "Ctrl-C" =~ $ONLY ]]; then
-    n=$((n + 1))
-    "$bin" train base --out run-int --views 3 --iters 100000 --no-eval --config "$demo" \
-        --set sampler.steps_per_diagonal=48 --set train.checkpoint_every=0 >"case-$n.log" 2>&1 &
+# Faults and concurrency (issue 52): a second writer, kill -9, outputs aimed at inputs,
+# damaged checkpoints, another scene, cameras that miss the scene.
+# long_run DIR SCENE [ARGS]: a training run in the background until killed; waits for
+# 3 logged steps; its pid in $pid.
+long_run() {
+    local dir=$1 scene=$2; shift 2
+    "$bin" train "$scene" --out "$dir" --views 3 --iters 100000 --no-eval --config "$demo" \
+        --set sampler.steps_per_diagonal=48 "$@" >"$dir.log" 2>&1 &
     pid=$!
     for _ in $(seq 1 "$timeout_s"); do
-        [ -f run-int/log.csv ] && [ "$(wc -l <run-int/log.csv)" -ge 3 ] && break
+        [ -f "$dir/log.csv" ] && [ "$(wc -l <"$dir/log.csv")" -ge 4 ] && break
         sleep 1
     done
-    kill -INT $pid
+}
+if [ -z "${ONLY:-}" ] || [[ "two runs|kill -9" =~ $ONLY ]]; then
+    long_run run-two base --set train.checkpoint_every=1
+    run_case error "is in use" "train: two runs into one --out (the second, with --overwrite)" -- "$bin" train b-perframe --out run-two "${FAST[@]}" --overwrite
+    kill -KILL $pid; wait $pid 2>/dev/null
+    run_case ok "trained" "train: --resume after kill -9 (no stale lock)" -- "$bin" train base --out run-two --resume --iters 40 --no-eval
+    run_case ok "each step once" "train: log.csv after kill -9 and --resume" -- python3 -c '
+import csv, sys
+steps = [int(r["step"]) for r in csv.DictReader(open("run-two/log.csv"))]
+sys.exit(print("each step once") if steps == list(range(len(steps))) else "steps logged: %s" % steps)'
+fi
+mkdir -p run-nockpt && cp run/config.json run/log.csv run-nockpt/
+run_case error "--overwrite" "train: --resume of a run killed before its first checkpoint" -- "$bin" train base --out run-nockpt --resume
+TEST=1 blender scene
+GUARD=scene run_case error "is the scene directory" "train: --out SCENE --overwrite" -- "$bin" train scene --out scene --overwrite "${FAST[@]}"
+GUARD=scene run_case error "lies inside the scene" "train: --out SCENE/test --overwrite" -- "$bin" train scene --out scene/test --overwrite "${FAST[@]}"
+GUARD=scene run_case error "lies inside the scene" "edges: --out SCENE/train" -- "$bin" edges scene --views 3 --out scene/train
+"$bin" train scene --out run-scene "${FAST[@]}" >run-scene.log 2>&1 || echo "fixture run-scene failed" >&2
+GUARD=scene run_case error "lies inside the scene" "render: --out SCENE/train" -- "$bin" render run-scene --scene scene --split train --out scene/train
+GUARD=scene run_case error "lies inside the scene" "eval: --out SCENE/test" -- "$bin" eval run-scene --scene scene --out scene/test --lpips none
+GUARD=run-scene run_case error "is the run directory" "render: --out the run directory" -- "$bin" render run-scene --out run-scene
+printf 'keep me' >existing.txt
+GUARD=existing.txt run_case error "already exists" "export mesh: --out an existing file" -- "$bin" export mesh run-scene --resolution 8 --out existing.txt
+run_case error "--allow-other-scene" "render: --scene another scene than the run's" -- "$bin" render run-scene --scene base --out r-other
+run_case error "--allow-other-scene" "eval: --scene another scene than the run's" -- "$bin" eval run-scene --scene base --out e-other --lpips none
+python3 ckpt_tool.py flip run/checkpoint.safetensors flipped.safetensors
+run_case error "damaged" "render: a checkpoint with one byte flipped" -- "$bin" render flipped.safetensors --out r-flipped
+python3 ckpt_tool.py reshape run/checkpoint.safetensors reshaped.safetensors
+run_case error "shape" "render: a checkpoint tensor reshaped to the same size" -- "$bin" render reshaped.safetensors --out r-reshaped
+python3 ckpt_tool.py edit-config run/checkpoint.safetensors edited.safetensors
+run_case error "edited.safetensors" "render: a checkpoint whose config was edited" -- "$bin" render edited.safetensors --out r-edited
+mkdir -p run-huge && cp run/config.json run/log.csv run-huge/
+python3 ckpt_tool.py huge run/checkpoint.safetensors run-huge/checkpoint.safetensors
+GUARD=run-huge/checkpoint.safetensors run_case error "training diverged" "train: --resume of a checkpoint holding weights of -8e37" -- "$bin" train base --out run-huge --resume --iters 5 --no-eval
+blender b-away "[m[i].__setitem__(j, -m[i][j]) for f in t['frames'] for m in [f['transform_matrix']] for i in range(3) for j in (0, 2)]"
+run_case error "no ray entered" "train: cameras that all look away from the scene" -- "$bin" train b-away --out run-away --views 3 --iters 50 --no-eval --config "$demo"
+blender b-samepose "[f.__setitem__('transform_matrix', t['frames'][0]['transform_matrix']) for f in t['frames']]"
+run_case error "the same camera pose" "train: every training camera at one pose" -- "$bin" train b-samepose --out run-samepose "${FAST[@]}"
+blender b-clear "
+import struct, zlib
+def chunk(k, d): return struct.pack('>I', len(d)) + k + d + struct.pack('>I', zlib.crc32(k + d))
+png = b'\\x89PNG\\r\\n\\x1a\\n' + chunk(b'IHDR', struct.pack('>IIBBBBB', 128, 128, 8, 6, 0, 0, 0)) + chunk(b'IDAT', zlib.compress(b''.join(b'\\0' + b'\\xff\\xff\\xff\\0' * 128 for _ in range(128)))) + chunk(b'IEND', b'')
+[open(os.path.join(r, 'train', n), 'wb').write(png) for n in os.listdir(os.path.join(r, 'train')) if n.endswith('.png') and not n.endswith('_mask.png')]"
+run_case error "fully transparent" "train: every training image fully transparent (alpha 0)" -- "$bin" train b-clear --out run-clear "${FAST[@]}"
+TEST=1 blender b-test0
+python3 -c 'import json; p="b-test0/transforms_test.json"; t=json.load(open(p)); t["frames"]=[]; json.dump(t, open(p, "w"))'
+"$bin" train b-test0 --out run-test0 "${FAST[@]}" >run-test0.log 2>&1 || echo "fixture run-test0 failed" >&2
+run_case error "lists no frames" "render: a transforms_test.json with 0 frames" -- "$bin" render run-test0 --out r-test0
+GUARD=afile run_case error "is a file" "edges: --out is a file" -- "$bin" edges base --views 3 --out afile
+GUARD=afile run_case error "is a file" "bench: --out is a file" -- "$bin" bench geometry --quick --out afile --report-only
+
+# Ctrl-C, SIGTERM (timeout, cluster schedulers) and SIGHUP (a closed terminal) during
+# training: a checkpoint at the step reached, nothing lost.
+for sig in INT TERM HUP; do
+    desc="SIG$sig during training (must save a checkpoint)"
+    if [ -n "${ONLY:-}" ] && ! [[ "$desc Ctrl-C" =~ $ONLY ]]; then continue; fi
+    n=$((n + 1))
+    long_run "run-$sig" base --set train.checkpoint_every=0
+    kill "-$sig" $pid
     wait $pid
     rc=$?
-    if grep -qE "panicked at|stack backtrace" "case-$n.log"; then outcome="crash"
-    elif [ -f run-int/checkpoint.safetensors ] && grep -qF "checkpoint saved" "case-$n.log"; then outcome="ok"
+    if grep -qE "panicked at|stack backtrace" "run-$sig.log"; then outcome="crash"
+    elif [ -f "run-$sig/checkpoint.safetensors" ] && grep -qF "checkpoint saved" "run-$sig.log"; then outcome="ok"
     else outcome="data lost"; fi
     count[$outcome]=$((${count[$outcome]:-0} + 1))
-    msg=$(grep -E "^error" "case-$n.log" | head -n 1); msg=${msg//$work\//}
-    rows+=("| $n | Ctrl-C during training (must save a checkpoint) | $rc | $outcome | ${msg:0:220} |")
-    printf '%3d %-12s %s\n' "$n" "$outcome" "Ctrl-C during training" >&2
-fi
+    msg=$(grep -E "^error" "run-$sig.log" | head -n 1); msg=${msg//$work\//}
+    rows+=("| $n | $desc | $rc | $outcome | ${msg:0:220} |")
+    printf '%3d %-12s %s\n' "$n" "$outcome" "$desc" >&2
+done
 
 # ---------------------------------------------------------------------------- report
 echo "edgenerf bad-input check: $bin ($(cd "$repo" && git rev-parse --short HEAD 2>/dev/null || echo unknown)), $(date -u +%Y-%m-%dT%H:%MZ), timeout ${timeout_s}s"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The checks of a machine with a real GPU in one run, for a release binary built
-# elsewhere (the README's "On an H100" figures came from these steps):
+# elsewhere (the "On an H100" figures of docs/journal.md came from these steps):
 #   tools/check-gpu.sh [BINARY] [OUT]        (defaults: target/release/edgenerf, runs/check-gpu)
 # 1. the adapter and the GPU self-test (`edgenerf info --check-gpu`);
 # 2. `edgenerf speed` on the demo and sparse-small presets (OUT/speed/speed.json);
@@ -8,14 +8,14 @@
 # 4. a 20-step 3-view run with every term and prior on from step 0 under the Khronos
 #    validation layer with synchronization validation, when the layer is installed:
 #    OUT/validation.txt must stay empty, and OUT/every-term/log.csv is the run's
-#    per-step losses, to compare with the same command on lavapipe (README).
+#    per-step losses, to compare with the same command on lavapipe (docs/guide/testing.md).
 # 5. with LIB_TESTS=<the engine's library test binary> (built with `cargo test --release
 #    -p edgenerf-engine --lib --no-run`; it must see the repository at the path it was
 #    built at, e.g. `ln -s $PWD /work/main`): that binary LIB_TEST_RUNS times (default
 #    3) at 16 test threads, NVIDIA's shader cache emptied before each run, where a
-#    shared device used to be lost (README, "On an H100"); OUT/lib-tests-N.log.
+#    shared device used to be lost (docs/journal.md, "On an H100"); OUT/lib-tests-N.log.
 # Run from anywhere; paths are the repository's. Without a Vulkan loader on the machine,
-# unpack Debian's libvulkan1 and glvnd's libraries first (README, "On an H100").
+# unpack Debian's libvulkan1 and glvnd's libraries first (docs/journal.md, "On an H100").
 set -uo pipefail
 cd "$(dirname "$0")/.."
 BIN="${1:-target/release/edgenerf}"

@@ -51,6 +51,9 @@ enum Command {
     /// Synthetic ground-truth scenes (Mitsuba): render them.
     #[command(subcommand)]
     Scenes(cmd::scenes::Command),
+    /// A local web viewer of a run: orbit the scene (RGB, depth, normals, opacity),
+    /// dataset views beside their ground truth, loss curves; follows a run in progress.
+    View(cmd::view::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -66,9 +69,13 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             // The chain of causes, one per line; no backtrace (users act on the message).
-            eprintln!("error: {e}");
+            // Write errors ignored: after SIGHUP the terminal may be gone (eprintln!
+            // would panic).
+            use std::io::Write;
+            let mut err = std::io::stderr().lock();
+            let _ = writeln!(err, "error: {e}");
             for cause in e.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
+                let _ = writeln!(err, "  caused by: {cause}");
             }
             std::process::ExitCode::FAILURE
         }
@@ -87,5 +94,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(c) => cmd::export::run(c, &gpu_opts),
         Command::Edges(args) => cmd::edges::run(args),
         Command::Scenes(c) => cmd::scenes::run(c),
+        Command::View(args) => cmd::view::run(args, &gpu_opts),
     }
 }

@@ -7,8 +7,8 @@
 //! `sparse-llff.toml`, DTU `sparse-dtu.toml`, Blender-format scenes `sparse-small.toml`;
 //! a nerfstudio or COLMAP capture gets the preset of the layout it loads as
 //! (`data::bounds`): a forward-facing one is an LLFF scene (`sparse-llff.toml`), an
-//! object-centric one gets `sparse-small.toml` (docs/results/real-captures.md measures
-//! it on a capture without alpha).
+//! object-centric one gets `sparse-small.toml` (docs/guide/presets.md;
+//! docs/results/real-captures.md measures it on a capture without alpha).
 
 use edgenerf::data::SceneFormat;
 

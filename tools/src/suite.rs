@@ -180,6 +180,10 @@ impl Suite {
                 bail!("suite {}: config names must be unique, non-empty, without '/', spaces or '__' ({:?})", path.display(), c.name);
             }
         }
+        // repeats = 0 ran each run once without a word.
+        if suite.repeats == 0 || suite.quick.as_ref().and_then(|q| q.repeats) == Some(0) {
+            bail!("suite {}: repeats = 0 would train nothing; write repeats = 1 or more", path.display());
+        }
         if let Some(q) = &suite.quick {
             for n in q.configs.iter().flatten() {
                 if !suite.configs.iter().any(|c| &c.name == n) {

@@ -1,12 +1,17 @@
-//! `edgenerf speed` (per-stage and per-kernel timing, JSON) and `train` with the sparse-view priors
+//! `edgenerf speed` (per-stage and per-kernel timing, JSON: what it reports holds of the
+//! steps it timed) and `train` with the sparse-view priors
 //! (`priors.distortion`, `priors.occlusion`: logged in `log.csv`'s appended columns).
 
 mod common;
 
 use common::{command, edgenerf, read_log, repo, text, train_creases_3v};
 
+/// What `edgenerf speed` reports must be true of the steps it timed: the preset's
+/// edge-guided terms run in them (speed starts every term at step 0, where the preset's
+/// schedule would start them at step 200), the kernels' GPU time fits inside the step
+/// that ran them, and the field stages carry the samples the report names.
 #[test]
-fn speed_reports_stages_that_add_up_and_field_throughput() {
+fn speed_times_the_steps_of_a_run_with_every_term_on() {
     let out = tempfile::tempdir().unwrap();
     let o = command()
         .current_dir(repo())
@@ -23,11 +28,11 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     assert_eq!(case["train_views"], 3);
     let stages = case["stages"].as_array().unwrap();
     assert_eq!(stages.len(), 7);
-    let sum: f64 = stages.iter().map(|s| s["ms_per_step"].as_f64().unwrap()).sum();
     let profiled = case["profiled_ms_per_step"].as_f64().unwrap();
-    assert!((sum - profiled).abs() <= 1e-6 * profiled, "stages {sum} vs total {profiled}");
-    let share: f64 = stages.iter().map(|s| s["share"].as_f64().unwrap()).sum();
-    assert!((share - 1.0).abs() < 1e-9);
+    // The field stages saw the step's samples: at least one per ray (3-view creases,
+    // untrained: every ray crosses the box) and no more than the batch's capacity.
+    let (rays, samples) = (case["rays_per_step"].as_f64().unwrap(), case["samples_per_step"].as_f64().unwrap());
+    assert!(samples >= rays && samples <= 512.0 * rays, "{samples} samples for {rays} rays: {case}");
     for key in ["steps_per_s", "samples_per_step", "field_forward_samples_per_s", "field_backward_samples_per_s"] {
         assert!(case[key].as_f64().unwrap() > 0.0, "{key}: {case}");
     }
@@ -56,9 +61,29 @@ fn speed_reports_stages_that_add_up_and_field_throughput() {
     let kernels = case["kernels"].as_array().unwrap();
     let ms: Vec<f64> = kernels.iter().map(|k| k["ms_per_step"].as_f64().unwrap()).collect();
     assert!(ms.windows(2).all(|w| w[0] >= w[1]), "{ms:?}");
-    let share: f64 = kernels.iter().map(|k| k["share"].as_f64().unwrap()).sum();
-    assert!((share - 1.0).abs() < 1e-9);
-    for name in ["field/grid_forward.wgsl:forward", "field/grid_backward.wgsl:backward", "optim/adam.wgsl:adam_step"] {
+    // The kernels of a step ran inside a step: their time adds up to about the profiled
+    // step's (which also waits after every stage; the two passes time different steps,
+    // on a shared machine, hence the wide bounds), and on lavapipe, where the field's
+    // kernels are most of a step, to a fair part of it. A timer read in the wrong unit,
+    // or launches counted several times, lands far outside. (sparse-small, 2-core CPU:
+    // 297 ms of kernels in a 279 ms profiled step.)
+    let kernel_ms: f64 = ms.iter().sum();
+    let why = format!("kernels {kernel_ms} ms against a {profiled} ms step: {case}");
+    assert!(kernel_ms <= 4.0 * profiled, "{why}");
+    if adapter.contains("llvmpipe") {
+        assert!(kernel_ms >= 0.1 * profiled, "{why}");
+    }
+    // sparse-small's terms run in the timed steps (speed sets reg.start_step = 0; with
+    // the preset's own schedule none would run before step 200): L_z and L_n, the
+    // depth-normal consistency and the cross-view reprojection each dispatch every step.
+    for name in [
+        "loss/edge_reg.wgsl:edge_reg",
+        "loss/depth_normal.wgsl:depth_normal",
+        "loss/reprojection.wgsl:reprojection",
+        "field/grid_forward.wgsl:forward",
+        "field/grid_backward.wgsl:backward",
+        "optim/adam.wgsl:adam_step",
+    ] {
         let k = kernels.iter().find(|k| k["kernel"] == name).unwrap_or_else(|| panic!("{name} not timed: {kernels:?}"));
         assert!(k["ms_per_step"].as_f64().unwrap() > 0.0 && k["dispatches_per_step"].as_f64().unwrap() >= 1.0, "{k}");
     }

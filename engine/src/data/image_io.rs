@@ -110,11 +110,16 @@ impl ImageRgb {
             .collect();
         let buf = image::RgbImage::from_raw(self.width, self.height, bytes)
             .ok_or_else(|| DataError::invalid(path, "image data length does not match its size"))?;
-        buf.save_with_format(path, image::ImageFormat::Png)
+        // Encoded in memory, then written: `save_with_format` writes through a
+        // BufWriter whose final flush error is dropped, so a full disk left a cut PNG
+        // and reported success.
+        let mut png = Vec::new();
+        buf.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .map_err(|source| DataError::Image {
                 path: path.to_path_buf(),
                 source,
-            })
+            })?;
+        std::fs::write(path, png).map_err(|e| DataError::io(path, e))
     }
 }
 

@@ -20,7 +20,7 @@
 //!   dropped (wgpu keeps it alive until the submission is done).
 //!
 //! Why: creating a bind group per dispatch was 17 % of the main thread's time in a
-//! lavapipe training step (`perf`, 2026-11-27; README, "Bind groups kept across
+//! lavapipe training step (`perf`, 2026-11-27; docs/journal.md, "Bind groups kept across
 //! steps"), and the host's own work is most of a training step on an H200.
 
 use std::collections::HashMap;

@@ -58,7 +58,7 @@
 //! the bytes written right before it: the queue runs writes and submissions in order,
 //! and wgpu orders a write after the earlier submissions that read the same buffer.
 //! Two encoders may therefore use the same arena range, on one thread or several. A
-//! buffer per dispatch cost the host time on an H200 (README, "On an H200: the weight
+//! buffer per dispatch cost the host time on an H200 (docs/journal.md, "On an H200: the weight
 //! gradients in one launch", item 4).
 //!
 //! A run of dispatches also shares one compute pass ([`Encoder`]'s `pass`, ended by a
@@ -816,7 +816,7 @@ pub(crate) mod tests {
     /// to record and submit, 60-85 us with lavapipe running the tiny dispatch. On an
     /// H200 (2026-11-27, later) the parameter arena and one compute pass per run of
     /// dispatches cut the host's own work per training step from 0.61-0.83 to
-    /// 0.37-0.60 ms and raised the steps/s 1.2x (README, "On an H200: the weight
+    /// 0.37-0.60 ms and raised the steps/s 1.2x (docs/journal.md, "On an H200: the weight
     /// gradients in one launch"); here they brought recording to 3.3-4.6 us. The bind
     /// groups kept across dispatches (`bind_cache`, 2026-11-27, eighth session) then
     /// gave 2.2-3.1 us (five interleaved rounds).
@@ -913,7 +913,7 @@ pub(crate) mod tests {
     /// three paths sum the same values.
     ///
     /// Measured 2026-11-27 on the 2-core CPU with lavapipe (five runs): storage
-    /// 1.14-1.78 ns per vec4, uniform 0.46-0.61, texture 0.95-1.22; see the README,
+    /// 1.14-1.78 ns per vec4, uniform 0.46-0.61, texture 0.95-1.22; see docs/journal.md,
     /// "Per kernel: where a step goes". A timing-only `outer` without its scratch loads
     /// ran 10-11 ms a step against 32-37 ms (`edgenerf speed --kernels`): the storage
     /// loads are most of its cost there.

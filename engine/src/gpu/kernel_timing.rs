@@ -8,7 +8,7 @@
 //! * where the adapter has `TIMESTAMP_QUERY` (NVIDIA, lavapipe): the GPU time between
 //!   the pass's beginning and end timestamps ([`GpuTimer`]), the kernel's execution
 //!   alone. On an H200 a submission and its wait cost 70-100 us, more than most of the
-//!   step's kernels run, so wall time there measured launches (README, "On an H200: the
+//!   step's kernels run, so wall time there measured launches (docs/journal.md, "On an H200: the
 //!   weight gradients in one launch").
 //! * otherwise: the wall time since the dispatch began recording, which includes its
 //!   bind group, one submit and one wait.

@@ -13,7 +13,7 @@
 //! that looks at it. Colour alone cannot move it: any height of a uniform grey surface
 //! renders the same grey. A term that prefers planes over tens of pixels carries the
 //! pinned depths across the region, and stops where the edge map says a region ends.
-//! Measured (README, "Planarity: textureless floors in three views"): it flattens the
+//! Measured (docs/journal.md, "Planarity: textureless floors in three views"): it flattens the
 //! floor and lowers the object scenes' non-edge normal error by 2-4 degrees, but does
 //! not lower the floor, and costs the deep forward-facing scenes, whose fog it
 //! flattens into sheets, 0.4-3.7 dB: off by default.

@@ -129,6 +129,12 @@ pub enum TrainError {
          Lower the learning rate (optim.schedule) or enable gradient clipping (optim.clip.max_norm)"
     )]
     NonFinite { step: u64, what: String },
+    #[error(
+        "no ray entered the scene's box in the first {steps} steps (0 samples per ray, nothing to learn): the \
+         training cameras look away from the scene, or its bounds (the aabb `edgenerf info` prints) miss what the \
+         cameras see; check the camera poses and bounds of the scene"
+    )]
+    RaysMissScene { steps: u64 },
 }
 
 impl TrainError {

@@ -230,6 +230,7 @@ impl Model {
         let mut config = ckpt.config.clone();
         config.resolve_for(scene)?;
         let mut model = Model::new(gpu, scene, config)?;
+        check_field_arrays(&model.field.export(gpu)?, &ckpt.field)?;
         model.field.import(gpu, &ckpt.field)?;
         if let Some(bg) = &mut model.background {
             bg.import(&ckpt.background).map_err(|message| TrainError::Config { source_name: "checkpoint".into(), message })?;
@@ -471,4 +472,28 @@ mod tests {
         let o = cam.origin();
         assert!(seen(o - Vec3::splat(0.2), o + Vec3::splat(0.2)));
     }
+}
+
+/// A checkpoint's field arrays against those of a field of its config (`expected`):
+/// the same names with the same full shapes (the field's import compares lengths only,
+/// so a `[32, 32]` array saved as `[16, 64]` loaded scrambled).
+fn check_field_arrays(expected: &[crate::field::NamedArray], got: &[crate::field::NamedArray]) -> Result<(), TrainError> {
+    use crate::field::FieldError;
+    for e in expected {
+        match got.iter().find(|a| a.name == e.name) {
+            None => return Err(FieldError::Import(format!("array {:?} is missing from the checkpoint", e.name)).into()),
+            Some(a) if a.shape != e.shape => {
+                return Err(FieldError::Import(format!(
+                    "array {:?} has shape {:?}, but this field's config makes it {:?}",
+                    e.name, a.shape, e.shape
+                ))
+                .into());
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(a) = got.iter().find(|a| !expected.iter().any(|e| e.name == a.name)) {
+        return Err(FieldError::Import(format!("array {:?} is not a parameter of this field's config", a.name)).into());
+    }
+    Ok(())
 }

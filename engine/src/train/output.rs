@@ -15,12 +15,35 @@ use super::TrainError;
 use super::model::RenderedView;
 
 /// Replaces `path` with `bytes` atomically: written to `<path>.partial`, then renamed.
+/// A failed write removes the `.partial` file (a full disk kept it, filling the disk).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".partial");
     let tmp = std::path::PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(|e| TrainError::io(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+    let written = std::fs::write(&tmp, bytes)
+        .map_err(|e| TrainError::io(&tmp, e))
+        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e)));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
+/// An error writing the output file `path`, said as one (an image library's "bad
+/// OpenEXR file ...: No space left on device" blamed an input).
+fn write_failed(path: &Path, e: impl Into<TrainError>) -> TrainError {
+    use crate::data::DataError;
+    let cause = match e.into() {
+        TrainError::Data(DataError::Exr { message, .. }) => message,
+        TrainError::Data(DataError::Image { source, .. }) => source.to_string(),
+        TrainError::Data(DataError::Io { source, .. }) => source.to_string(),
+        other => other.to_string(),
+    };
+    let _ = std::fs::remove_file(path);
+    TrainError::Io {
+        path: path.to_path_buf(),
+        message: format!("writing this output failed ({cause}); check the free space and write permission there"),
+    }
 }
 
 /// The rendered colour as an image.
@@ -44,12 +67,29 @@ pub fn shown_depth(r: &RenderedView) -> (Vec<f32>, Vec<bool>) {
 pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> Result<(), TrainError> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
     let (w, h) = (r.width, r.height);
-    rgb_image(r).save_png(dir.join(format!("{name}_rgb.png")))?;
-    save_depth_exr(dir.join(format!("{name}_depth.exr")), w, h, &r.depth)?;
+    let file = |suffix: &str| dir.join(format!("{name}_{suffix}"));
+    let png = |img: ImageRgb, suffix: &str| img.save_png(file(suffix)).map_err(|e| write_failed(&file(suffix), e));
+    png(rgb_image(r), "rgb.png")?;
+    save_depth_exr(file("depth.exr"), w, h, &r.depth).map_err(|e| write_failed(&file("depth.exr"), e))?;
     let (shown, valid) = shown_depth(r);
-    viz::depth_image(w, h, &shown, Some(&valid)).0.save_png(dir.join(format!("{name}_depth.png")))?;
-    save_normal_exr(dir.join(format!("{name}_normal.exr")), w, h, &r.normal)?;
-    viz::normal_image(w, h, &r.unit_normals()).save_png(dir.join(format!("{name}_normal.png")))?;
-    viz::grey_image(w, h, &r.opacity).save_png(dir.join(format!("{name}_opacity.png")))?;
+    png(viz::depth_image(w, h, &shown, Some(&valid)).0, "depth.png")?;
+    save_normal_exr(file("normal.exr"), w, h, &r.normal).map_err(|e| write_failed(&file("normal.exr"), e))?;
+    png(viz::normal_image(w, h, &r.unit_normals()), "normal.png")?;
+    png(viz::grey_image(w, h, &r.opacity), "opacity.png")?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// A write that fails leaves no `.partial` file behind (a full disk kept one).
+    #[test]
+    fn a_failed_write_leaves_no_partial_file() {
+        let dir = tempfile::tempdir().unwrap();
+        // The rename fails: a directory that is not empty stands at the final name.
+        let target = dir.path().join("metrics.json");
+        std::fs::create_dir_all(target.join("x")).unwrap();
+        assert!(super::write_atomic(&target, b"{}").is_err());
+        assert!(!dir.path().join("metrics.json.partial").exists());
+        assert!(target.join("x").is_dir(), "what stood there is untouched");
+    }
 }

@@ -5,7 +5,10 @@
 //! * [`CONFIG`] (`config.json`): the effective config ([`RunConfig::to_json`]), first;
 //! * [`LOG`] (`log.csv`): one row per step ([`StepStats::csv_row`], seconds since the
 //!   start of this call in `elapsed_s`), appended, so a resumed run continues its log;
-//!   the header when the file is new;
+//!   the header when the file is new. Rows of steps at or after the trainer's first step
+//!   (logged by an earlier run that ended after its last checkpoint: a crash, a kill -9,
+//!   a second Ctrl-C) and a row cut short are dropped first, so the log holds each step
+//!   once, in order;
 //! * [`CHECKPOINT`] (`checkpoint.safetensors`): every `train.checkpoint_every` steps
 //!   (0: never in between), and when the loop ends, however it ends.
 //!
@@ -18,8 +21,12 @@
 //!
 //! Invariants: `config.json`, checkpoints and `metrics.json` are replaced atomically
 //! ([`write_atomic`]); a step's log row is written as soon as the step is done; a step
-//! that fails (a non-finite loss or gradient, [`TrainError::NonFinite`]) ends the run
-//! with its error, writing no row and no checkpoint, so the last good checkpoint stays.
+//! that fails (a non-finite loss or gradient, or a gradient norm that overflows,
+//! [`TrainError::NonFinite`]) ends the run with its error, writing no row and no
+//! checkpoint, so the last good checkpoint stays; so does a run whose first
+//! [`MISSED_STEPS`] steps evaluate no sample ([`TrainError::RaysMissScene`]: every ray
+//! missed the scene's box). One writer per run directory is the caller's to ensure
+//! (the CLI holds a lock file, `train.lock`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -41,6 +48,10 @@ pub const CONFIG: &str = "config.json";
 pub const LOG: &str = "log.csv";
 /// The directory of the test views' renders and `metrics.json`.
 pub const TEST_DIR: &str = "test";
+
+/// A run whose first this many steps evaluate no sample at all stops
+/// ([`TrainError::RaysMissScene`]).
+pub const MISSED_STEPS: u64 = 5;
 
 /// What a caller sees of a run while it goes (progress display, stop requests). Every
 /// method has a default that does nothing.
@@ -91,12 +102,15 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
     write_atomic(&dir.join(CONFIG), config.to_json().as_bytes())?;
     let checkpoint = dir.join(CHECKPOINT);
     let log_path = dir.join(LOG);
-    let mut log = open_log(&log_path)?;
+    let mut log = open_log(&log_path, trainer.step_count())?;
     let iters = config.train.iters;
     let start = Instant::now();
     let first_step = trainer.step_count();
     let mut end = RunEnd::Finished;
     let every = config.train.checkpoint_every;
+    // Steps without a single sample since the start of this call, until one has some.
+    let mut missed = 0u64;
+    let mut any_samples = false;
     // Each step is read back while the next one runs (Trainer::step_pipelined); the
     // step before a checkpoint and the last one are read back at once (drained), so a
     // checkpoint holds exactly the steps the log has rows for.
@@ -107,6 +121,22 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
         let mut stopping = None;
         let mut i = 0;
         while let Some(stats) = steps.get(i) {
+            // A gradient whose entries are finite but whose norm overflows (a weight of
+            // -8e37 in a checkpoint) is divergence too: before, such a run trained on
+            // with grad_norm = inf and wrote new checkpoints.
+            if !stats.grad_norm.is_finite() {
+                return Err(TrainError::NonFinite { step: stats.step, what: format!("the gradient's norm ({})", stats.grad_norm) });
+            }
+            // Rays that all miss the scene's box give 0 samples and gradient 0: a run
+            // that "trained" for its whole length on nothing.
+            if stats.samples > 0 {
+                any_samples = true;
+            } else if !any_samples {
+                missed += 1;
+                if missed >= MISSED_STEPS {
+                    return Err(TrainError::RaysMissScene { steps: missed });
+                }
+            }
             let elapsed = start.elapsed().as_secs_f64();
             writeln!(log, "{}", stats.csv_row(elapsed)).map_err(|e| TrainError::io(&log_path, e))?;
             observer.step(trainer, stats, elapsed);
@@ -137,9 +167,32 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
     Ok(RunSummary { first_step, last_step: trainer.step_count(), elapsed_s: start.elapsed().as_secs_f64(), end, checkpoint })
 }
 
-/// `log.csv` opened for appending, with the header written when it is new.
-fn open_log(path: &Path) -> Result<std::fs::File, TrainError> {
+/// `log.csv` opened for appending, with the header written when it is new, after
+/// dropping the rows of steps `first_step` and later and any row cut short (a resumed
+/// run redoes those steps from its checkpoint; before, a resume after a crash logged
+/// them twice).
+fn open_log(path: &Path, first_step: u64) -> Result<std::fs::File, TrainError> {
     let io = |e| TrainError::io(path, e);
+    if let Ok(text) = std::fs::read_to_string(path)
+        && let Some(header) = text.lines().next()
+    {
+        let columns = header.split(',').count();
+        let mut kept = format!("{header}\n");
+        let mut dropped = 0usize;
+        for line in text.lines().skip(1) {
+            let step = line.split(',').next().and_then(|v| v.parse::<u64>().ok());
+            if step.is_some_and(|s| s < first_step) && line.split(',').count() == columns {
+                kept.push_str(line);
+                kept.push('\n');
+            } else {
+                dropped += 1;
+            }
+        }
+        if dropped > 0 || !text.ends_with('\n') {
+            log::info!("{}: dropped {dropped} rows logged after the checkpoint's step {first_step}", path.display());
+            write_atomic(path, kept.as_bytes())?;
+        }
+    }
     let mut log = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(io)?;
     if log.metadata().map_err(io)?.len() == 0 {
         writeln!(log, "{}", StepStats::CSV_HEADER).map_err(io)?;

@@ -219,6 +219,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
     }
     let title = if args.quick { format!("{name}-quick") } else { name.clone() };
     let out = args.out.clone().unwrap_or_else(|| repo.join("runs/bench").join(&title));
+    crate::output::refuse_file(&out, "--out")?;
     std::fs::create_dir_all(out.join("runs")).with_context(|| format!("creating {}", out.display()))?;
     let runs = suite.runs(&repo, args.repeats, &out.join("gt-edges"))?;
     let sweep = Sweep {
@@ -236,6 +237,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
     if args.slurm.slurm {
         return write_slurm_job(&args, &sweep, &runs, &repo, &path, &title);
     }
+    let mut none_finished = false;
     if !args.report_only {
         let todo: Vec<&RunSpec> = runs.iter().filter(|r| !sweep.finished(r)).collect();
         eprintln!(
@@ -265,6 +267,7 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
         }
         bar.finish_and_clear();
         eprintln!("{ok} runs finished, {failed} failed, in {:.0} s", start.elapsed().as_secs_f64());
+        none_finished = ok == 0 && failed > 0;
     }
 
     let mut rows = crate::report::collect(&runs, &out.join("runs"));
@@ -285,6 +288,16 @@ pub fn run(args: Args, adapter: Option<&str>) -> anyhow::Result<()> {
         rows.len(),
         failed
     );
+    // A failed run does not fail the sweep, but a sweep whose every run failed has
+    // nothing to report (it exited 0). `--report-only` only reports.
+    if none_finished && failed == rows.len() {
+        bail!(
+            "no run of the suite finished ({} of {} failed or missing); the errors are in {} and each run's train.log",
+            failed,
+            rows.len(),
+            out.join("report.md").display()
+        );
+    }
     Ok(())
 }
 

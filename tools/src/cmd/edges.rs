@@ -3,7 +3,6 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use edgenerf::data::ImageRgb;
 use edgenerf::edges::{EdgeConfig, EdgeMask, EdgeSource, Polarity, edge_masks, mask_stem};
 
@@ -97,12 +96,22 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = args.input.load()?;
     let mut cfg = EdgeConfig::default();
     args.edge.apply(&mut cfg);
+    // Before any work: masks written into the scene (`--out SCENE/train`) replaced its
+    // training images; a file as --out gave a raw OS error after the masks were made.
+    let mut inputs = vec![(args.input.scene.as_path(), "the scene directory")];
+    if let (EdgeSource::External, Some(dir)) = (cfg.source, cfg.dir.as_deref()) {
+        inputs.push((dir, "the edge maps' directory"));
+    }
+    crate::output::refuse_inside_inputs(&args.out, "--out", &inputs)?;
+    if args.out.exists() && !args.out.is_dir() {
+        anyhow::bail!("--out {} is a file; pass a directory (it is created when missing)", args.out.display());
+    }
+    let scene = args.input.load()?;
     let views: Vec<usize> = if args.all { (0..scene.views.len()).collect() } else { scene.split.train.clone() };
     let masks = edge_masks(&scene, &views, &cfg)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    crate::output::ensure_dir(&args.out, "--out")?;
     println!("edges: {}", describe(&cfg));
     let mut total = 0.0;
     for (&v, mask) in views.iter().zip(&masks) {

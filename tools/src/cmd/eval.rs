@@ -65,6 +65,9 @@ pub struct Args {
     /// that change the parameters' shapes are refused when the checkpoint loads.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+    /// Use a --scene other than the one the run was trained on (refused otherwise).
+    #[arg(long, requires = "scene")]
+    allow_other_scene: bool,
     /// Skip the mesh metrics (done by default when the scene has a gt_mesh.ply).
     #[arg(long)]
     no_mesh: bool,
@@ -270,8 +273,11 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         let dir = if args.run.is_dir() { args.run.clone() } else { args.run.parent().map(Path::to_path_buf).unwrap_or_default() };
         dir.join(if args.split == "test" { "eval".to_string() } else { format!("eval-{}", args.split) })
     });
-    crate::output::ensure_dir(&out, "--out")?;
-    let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), &args.overrides, gpu_opts)?;
+    crate::output::refuse_file(&out, "--out")?;
+    let check = crate::cmd::render::OutputCheck { out: &out, allow_other_scene: args.allow_other_scene };
+    let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), &args.overrides, gpu_opts, check)?;
+    // Created once the run loaded; removed again if nothing gets written into it.
+    let _out = crate::output::OutDir::create(&out, "--out")?;
     let views = crate::cmd::render::split_views(&run.scene, &args.split)?;
 
     let bar = ProgressBar::new(views.len() as u64);
@@ -285,6 +291,9 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     if records.is_empty() {
+        if args.split == "test" {
+            bail!("{}", crate::cmd::render::no_test_views(&run.scene, "eval --split train or --split all instead"));
+        }
         bail!("the {} split of {} has no view", args.split, run.scene.root.display());
     }
     let protocol = records[0].protocol;

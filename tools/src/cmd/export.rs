@@ -33,6 +33,26 @@ pub struct RunArgs {
     /// Override one setting of the checkpoint's config (repeatable), as for `render`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+    /// Use a --scene other than the one the run was trained on (refused otherwise).
+    #[arg(long, requires = "scene")]
+    allow_other_scene: bool,
+    /// Replace an existing file given as --out (the default file beside the checkpoint
+    /// is always replaced).
+    #[arg(long)]
+    overwrite: bool,
+}
+
+impl RunArgs {
+    /// The run loaded for writing `out` ([`crate::cmd::render::load_run`]), then the
+    /// folder of `out` created.
+    fn load(&self, out: &Path, gpu_opts: &GpuOptions) -> anyhow::Result<crate::cmd::render::LoadedRun> {
+        let check = crate::cmd::render::OutputCheck { out, allow_other_scene: self.allow_other_scene };
+        let run = crate::cmd::render::load_run(&self.run, self.scene.as_deref(), &self.overrides, gpu_opts, check)?;
+        if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        Ok(run)
+    }
 }
 
 #[derive(clap::Args)]
@@ -80,8 +100,10 @@ pub fn run(cmd: Command, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     }
 }
 
-/// `--out`, or `name` beside the checkpoint; refuses a directory.
-fn out_path(run: &Path, out: Option<&Path>, name: &str) -> anyhow::Result<PathBuf> {
+/// `--out`, or `name` beside the checkpoint; refuses a directory, and an existing file
+/// given as `--out` without `--overwrite` (it was silently replaced).
+fn out_path(args: &RunArgs, out: Option<&Path>, name: &str) -> anyhow::Result<PathBuf> {
+    let run = &args.run;
     let path = match out {
         Some(p) => p.to_path_buf(),
         None => if run.is_dir() { run.to_path_buf() } else { run.parent().map(Path::to_path_buf).unwrap_or_default() }.join(name),
@@ -89,8 +111,8 @@ fn out_path(run: &Path, out: Option<&Path>, name: &str) -> anyhow::Result<PathBu
     if path.is_dir() {
         bail!("--out {} is a directory; pass a file name such as {}", path.display(), path.join(name).display());
     }
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    if out.is_some() && path.exists() && !args.overwrite {
+        bail!("--out {} already exists; nothing was changed. Pass --overwrite to replace it, or another file name", path.display());
     }
     Ok(path)
 }
@@ -128,8 +150,8 @@ fn mesh(args: MeshArgs, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     {
         bail!("--level {l}: the density level must be a positive number");
     }
-    let out = out_path(&args.run.run, args.out.as_deref(), "mesh.ply")?;
-    let mut run = crate::cmd::render::load_run(&args.run.run, args.run.scene.as_deref(), &args.run.overrides, gpu_opts)?;
+    let out = out_path(&args.run, args.out.as_deref(), "mesh.ply")?;
+    let mut run = args.run.load(&out, gpu_opts)?;
     let level = args.level.unwrap_or_else(|| default_level(&run.model, &run.scene));
     let opts = MeshOptions { resolution: args.resolution, level: Some(level), bbox, keep_ndc: args.ndc };
     let [lo, hi] = bbox.unwrap_or(run.scene.aabb);
@@ -184,8 +206,8 @@ fn points(args: PointsArgs, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_opacity) {
         bail!("--min-opacity {}: must be between 0 and 1", args.min_opacity);
     }
-    let out = out_path(&args.run.run, args.out.as_deref(), "points.ply")?;
-    let mut run = crate::cmd::render::load_run(&args.run.run, args.run.scene.as_deref(), &args.run.overrides, gpu_opts)?;
+    let out = out_path(&args.run, args.out.as_deref(), "points.ply")?;
+    let mut run = args.run.load(&out, gpu_opts)?;
     let views = parse_views(&run.scene, &args.views)?;
     if views.is_empty() {
         bail!("--views {}: the scene has no such view", args.views);

@@ -8,6 +8,7 @@ pub mod render;
 pub mod scenes;
 pub mod speed;
 pub mod train;
+pub mod view;
 
 use std::path::PathBuf;
 

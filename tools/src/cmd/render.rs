@@ -64,6 +64,9 @@ pub struct Args {
     /// Replace the frames and animations of an earlier path render in --out.
     #[arg(long, requires = "path")]
     overwrite: bool,
+    /// Use a --scene other than the one the run was trained on (refused otherwise).
+    #[arg(long, requires = "scene")]
+    allow_other_scene: bool,
 }
 
 fn parse_fps(s: &str) -> Result<f32, String> {
@@ -77,13 +80,16 @@ fn parse_scale(s: &str) -> Result<f32, String> {
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
-    crate::output::ensure_dir(&args.out, "--out")?;
+    crate::output::refuse_file(&args.out, "--out")?;
     // A path render's requests are checked before the model loads.
     let path = match &args.path {
         Some(kind) => Some(prepare_path(&args, kind)?),
         None => None,
     };
-    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts)?;
+    let check = crate::cmd::render::OutputCheck { out: &args.out, allow_other_scene: args.allow_other_scene };
+    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts, check)?;
+    // Created once the run loaded; removed again if nothing gets written into it.
+    let _out = crate::output::OutDir::create(&args.out, "--out")?;
     if let Some(b) = &args.backend {
         let want: edgenerf::train::Backend = b.parse().map_err(anyhow::Error::msg)?;
         let got = run.model.config.backend;
@@ -232,15 +238,64 @@ pub struct LoadedRun {
     pub step: u64,
 }
 
+/// What a command that loads a run writes, checked against the run's inputs before
+/// anything is loaded onto the GPU or written.
+pub struct OutputCheck<'a> {
+    /// The output directory (`render`, `eval`) or file (`export`).
+    pub out: &'a Path,
+    /// `--allow-other-scene`: a `--scene` that is not the run's is used anyway.
+    pub allow_other_scene: bool,
+}
+
 /// The run of a checkpoint (a file, or a run directory holding
 /// `checkpoint.safetensors`) on its scene (the path recorded in its config, or
 /// `scene`), on the GPU ([`Model::from_checkpoint`]), with the `--set` `overrides`
-/// applied to its config. Shared by `render` and `eval`.
-pub fn load_run(checkpoint: &Path, scene: Option<&Path>, overrides: &[String], gpu_opts: &GpuOptions) -> anyhow::Result<LoadedRun> {
+/// applied to its config. Shared by `render`, `eval` and `export`. Refuses, before the
+/// GPU: an output inside the scene directory or equal to the run directory (renders
+/// into `SCENE/train` replaced the ground truth), and a `--scene` other than the one
+/// the run was trained on unless `allow_other_scene` (it scored against the other
+/// scene's cameras without a word).
+pub fn load_run(
+    checkpoint: &Path,
+    scene: Option<&Path>,
+    overrides: &[String],
+    gpu_opts: &GpuOptions,
+    check: OutputCheck,
+) -> anyhow::Result<LoadedRun> {
     let path = if checkpoint.is_dir() { checkpoint.join("checkpoint.safetensors") } else { checkpoint.to_path_buf() };
     let mut ckpt = Checkpoint::load(&path)?;
+    let recorded = ckpt.config.scene.path.clone();
     if let Some(scene) = scene {
+        let same = match (scene.canonicalize(), recorded.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            // The run's scene is gone (moved): --scene is how to point at it.
+            (_, Err(_)) => true,
+            (Err(_), Ok(_)) => false,
+        };
+        if !same && !check.allow_other_scene {
+            bail!(
+                "--scene {} is not the scene {} was trained on ({}); its cameras and ground truth would score \
+                 another scene. Pass --allow-other-scene to use it anyway (a copy or another version of the same \
+                 scene), or leave out --scene",
+                scene.display(),
+                path.display(),
+                recorded.display()
+            );
+        }
         ckpt.config.scene.path = scene.to_path_buf();
+    }
+    let scene_path = ckpt.config.scene.path.clone();
+    crate::output::refuse_inside_inputs(check.out, "--out", &[(&scene_path, "the scene directory")])?;
+    if let Some(run_dir) = path.parent()
+        && crate::output::resolved(check.out) == crate::output::resolved(run_dir)
+    {
+        bail!(
+            "--out {} is the run directory of {}; its files would mix with the run's. Pass a folder inside it \
+             (such as {}) or elsewhere",
+            check.out.display(),
+            path.display(),
+            run_dir.join("renders").display()
+        );
     }
     for o in overrides {
         ckpt.config.set(o)?;
@@ -249,11 +304,13 @@ pub fn load_run(checkpoint: &Path, scene: Option<&Path>, overrides: &[String], g
         ckpt.config.resolve();
         ckpt.config.validate().map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
-    let scene_path = ckpt.config.scene.path.clone();
-    let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options())
-        .with_context(|| format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()))?;
+    let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options()).with_context(|| match scene {
+        Some(_) => format!("loading --scene {} (the run was trained on {})", scene_path.display(), recorded.display()),
+        None => format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()),
+    })?;
     let gpu = Gpu::new(gpu_opts)?;
-    let model = Model::from_checkpoint(&gpu, &scene, &ckpt)?;
+    let model = Model::from_checkpoint(&gpu, &scene, &ckpt)
+        .with_context(|| format!("loading the model of {} on {}", path.display(), scene_path.display()))?;
     Ok(LoadedRun { gpu, scene, model, step: ckpt.step })
 }
 
@@ -273,8 +330,15 @@ pub fn split_views(scene: &Scene, split: &str) -> anyhow::Result<Vec<usize>> {
 /// The message for a scene without test views, ending with what to do instead (`hint`).
 pub fn no_test_views(scene: &Scene, hint: &str) -> String {
     let files = match scene.format {
-        edgenerf::data::SceneFormat::Blender => "no transforms_test.json or transforms_val.json",
-        _ => "every view is a training view of this split",
+        // A transforms_test.json without frames is there: say so (it read as missing).
+        edgenerf::data::SceneFormat::Blender => match ["transforms_test.json", "transforms_val.json"]
+            .into_iter()
+            .find(|f| scene.root.join(f).is_file())
+        {
+            Some(f) => format!("its {f} lists no frames"),
+            None => "no transforms_test.json or transforms_val.json".to_string(),
+        },
+        _ => "every view is a training view of this split".to_string(),
     };
     format!("{} has no test views ({files}), so there is nothing to evaluate; {hint}", scene.root.display())
 }

@@ -1,8 +1,10 @@
 //! `edgenerf train`: the front end of a training run. Parses the flags into a
-//! [`RunConfig`], prepares the run directory (refusing to mix runs), loads the scene and
-//! edge masks, then hands the loop to the engine ([`run::train_run`]: checkpoints,
-//! `log.csv`, `config.json`, the time limit) with a progress bar and Ctrl-C as its
-//! observer, and ends with the test-view evaluation ([`crate::cmd::render::evaluate_and_write`]).
+//! [`RunConfig`], prepares the run directory (refusing an `--out` in the scene or
+//! holding its inputs, taking the directory's lock so that one run writes there at a
+//! time, refusing to mix runs), loads the scene and edge masks, then hands the loop to
+//! the engine ([`run::train_run`]: checkpoints, `log.csv`, `config.json`, the time
+//! limit) with a progress bar and Ctrl-C, SIGTERM and SIGHUP as its observer, and ends
+//! with the test-view evaluation ([`crate::cmd::render::evaluate_and_write`]).
 
 use std::path::PathBuf;
 
@@ -216,23 +218,64 @@ fn check_test_views(args: &Args, scene: &Scene) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Training views that cannot teach a field anything are refused before any work
+/// (they trained with 0 samples or on empty targets and exited 0): every training
+/// camera at one and the same pose, or every training image fully transparent.
+fn check_training_views(scene: &Scene) -> anyhow::Result<()> {
+    let train: Vec<&edgenerf::data::View> = scene.split.train.iter().map(|&v| &scene.views[v]).collect();
+    if train.len() >= 2 && train.iter().all(|v| v.camera.c2w.abs_diff_eq(train[0].camera.c2w, 1e-6)) {
+        bail!(
+            "every training view of {} ({}) has the same camera pose, so no depth can be learned from them; check \
+             the poses (transform_matrix) of its frames",
+            scene.root.display(),
+            train.len()
+        );
+    }
+    let transparent = |v: &&edgenerf::data::View| v.alpha.as_ref().is_some_and(|a| a.iter().all(|&x| x == 0.0));
+    if !train.is_empty() && train.iter().all(transparent) {
+        bail!(
+            "every training image of {} is fully transparent (alpha 0 in every pixel), so there is nothing to \
+             learn; check the images' alpha channel (an export that dropped the object?)",
+            scene.root.display()
+        );
+    }
+    Ok(())
+}
+
 /// What a run writes into its directory; any of them there means the directory holds a
 /// run (an empty directory, or one holding only other files such as a suite's
 /// `train.log`, is free).
 const RUN_FILES: [&str; 4] = ["checkpoint.safetensors", "config.json", "log.csv", "test"];
 
-/// Makes `--out` ready: refuses a file, refuses a directory holding a run unless
-/// `--resume` or `--overwrite` says what to do with it (before this check, a second
-/// `train` into a finished run replaced its checkpoint and appended to its log),
-/// deletes the old run's files with `--overwrite`.
-fn prepare_run_dir(args: &Args) -> anyhow::Result<()> {
+/// Makes `--out` ready: refuses a file, takes the run directory's lock (one writer per
+/// directory: two runs started together into one `--out` interleaved their logs and
+/// mixed their files), refuses a directory holding a run unless `--resume` or
+/// `--overwrite` says what to do with it (before this check, a second `train` into a
+/// finished run replaced its checkpoint and appended to its log), deletes the old
+/// run's files with `--overwrite`. The lock lives as long as the value returned.
+fn prepare_run_dir(args: &Args) -> anyhow::Result<crate::output::RunLock> {
     if args.resume {
         if !args.out.join("checkpoint.safetensors").is_file() {
-            bail!("--resume: {} holds no checkpoint.safetensors to continue from; train without --resume to start a run there", args.out.display());
+            let present: Vec<&str> = RUN_FILES.into_iter().filter(|f| args.out.join(f).exists()).collect();
+            if present.is_empty() {
+                bail!(
+                    "--resume: {} holds no checkpoint.safetensors to continue from; train without --resume to start a \
+                     run there",
+                    args.out.display()
+                );
+            }
+            bail!(
+                "--resume: {} holds a run that stopped before its first checkpoint ({} but no \
+                 checkpoint.safetensors), so there is nothing to continue from; start it again with --overwrite \
+                 (train.checkpoint_every sets how often a run saves one)",
+                args.out.display(),
+                present.join(", ")
+            );
         }
-        return Ok(());
+        return crate::output::lock_run_dir(&args.out);
     }
     crate::output::ensure_dir(&args.out, "--out")?;
+    let lock = crate::output::lock_run_dir(&args.out)?;
     let present: Vec<&str> = RUN_FILES.into_iter().filter(|f| args.out.join(f).exists()).collect();
     if !present.is_empty() {
         if !args.overwrite {
@@ -247,6 +290,38 @@ fn prepare_run_dir(args: &Args) -> anyhow::Result<()> {
             let p = args.out.join(f);
             let removed = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
             removed.with_context(|| format!("--overwrite: removing {}", p.display()))?;
+        }
+    }
+    Ok(lock)
+}
+
+/// Refuses an `--out` that is the scene directory or the edge maps' directory, lies
+/// inside one, or would hold the scene where the run writes (`--out PARENT` of a scene
+/// at `PARENT/test`): `train SCENE --out SCENE --overwrite` deleted the scene's test
+/// views.
+fn check_out_apart_from_inputs(args: &Args, config: Option<&RunConfig>) -> anyhow::Result<()> {
+    let scene = config.map_or(args.input.scene.as_path(), |c| c.scene.path.as_path());
+    let mut inputs = vec![(scene, "the scene directory")];
+    if let Some(dir) = config
+        .filter(|c| c.edges.source == edgenerf::edges::EdgeSource::External)
+        .and_then(|c| c.edges.dir.as_deref())
+    {
+        inputs.push((dir, "the edge maps' directory"));
+    }
+    crate::output::refuse_inside_inputs(&args.out, "--out", &inputs)?;
+    for (dir, what) in inputs {
+        let dir = crate::output::resolved(dir);
+        for f in RUN_FILES.into_iter().chain(["edges"]) {
+            let written = args.out.join(f);
+            if dir.starts_with(crate::output::resolved(&written)) {
+                bail!(
+                    "--out {}: {what} {} lies in {}, which a run writes (and --overwrite deletes); nothing was \
+                     changed. Choose another --out",
+                    args.out.display(),
+                    dir.display(),
+                    written.display()
+                );
+            }
         }
     }
     Ok(())
@@ -281,10 +356,12 @@ fn absolute_scene(path: &std::path::Path) -> anyhow::Result<PathBuf> {
     }
 }
 
-/// Ctrl-C while training: the first asks the loop to stop after the current step and
-/// save a checkpoint; a second, or one outside the loop (loading, evaluation), exits at
-/// once as without a handler.
+/// Ctrl-C, SIGTERM or SIGHUP while training (what a user, `timeout`, a cluster
+/// scheduler or a closed terminal sends): the first asks the loop to stop after the
+/// current step and save a checkpoint; a second, or one outside the loop (loading,
+/// evaluation), exits at once as without a handler.
 mod interrupt {
+    use std::io::Write;
     use std::sync::atomic::{AtomicU8, Ordering};
 
     const IDLE: u8 = 0;
@@ -298,7 +375,12 @@ mod interrupt {
             if STATE.compare_exchange(TRAINING, REQUESTED, Ordering::SeqCst, Ordering::SeqCst).is_err() {
                 std::process::exit(130);
             }
-            eprintln!("\ninterrupt: stopping after this step and saving a checkpoint (Ctrl-C again to quit at once)");
+            // Not eprintln!: after SIGHUP the terminal may be gone, and a failed write
+            // must not panic the handler.
+            let _ = writeln!(
+                std::io::stderr(),
+                "\ninterrupt (Ctrl-C, SIGTERM or SIGHUP): stopping after this step and saving a checkpoint (again to quit at once)"
+            );
         });
     }
 
@@ -389,7 +471,12 @@ impl RunObserver for Progress {
 }
 
 pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
-    prepare_run_dir(&args)?;
+    // The config first: it reads files (--config) that --overwrite may be about to
+    // delete (`--config RUN/config.json --out RUN --overwrite`).
+    let config = if args.resume { None } else { Some(build_config(&args)?) };
+    check_out_apart_from_inputs(&args, config.as_ref())?;
+    // Held until the run, its evaluation included, is over.
+    let _lock = prepare_run_dir(&args)?;
     interrupt::install();
     let ckpt_path = args.out.join(run::CHECKPOINT);
     let gpu = Gpu::new(gpu_opts)?;
@@ -404,12 +491,14 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         ckpt.config.scene.path = resumed_scene(&args, &ckpt.config.scene.path)?;
         let scene = load_scene(&ckpt.config)?;
         check_test_views(&args, &scene)?;
+        check_training_views(&scene)?;
         let masks = edge_masks(&args, &ckpt.config, &scene)?;
-        Trainer::resume(gpu, scene, ckpt, masks)?
+        Trainer::resume(gpu, scene, ckpt, masks).with_context(|| format!("resuming from {}", ckpt_path.display()))?
     } else {
-        let config = build_config(&args)?;
+        let config = config.expect("built above without --resume");
         let scene = load_scene(&config)?;
         check_test_views(&args, &scene)?;
+        check_training_views(&scene)?;
         let masks = edge_masks(&args, &config, &scene)?;
         Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
@@ -453,12 +542,15 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     interrupt::set_training(false);
     let summary = match result {
         Ok(s) => s,
-        Err(e @ TrainError::NonFinite { .. }) => {
+        Err(e @ (TrainError::NonFinite { .. } | TrainError::RaysMissScene { .. })) => {
             bar.abandon();
             let kept = if ckpt_path.is_file() { format!("the last good checkpoint is kept at {}", ckpt_path.display()) } else { "no checkpoint had been written yet".into() };
             bail!("{e}\n{kept}");
         }
-        Err(e) => return Err(e.into()),
+        Err(e) => {
+            bar.abandon();
+            return Err(e.into());
+        }
     };
     if summary.end == RunEnd::Stopped {
         bar.abandon();

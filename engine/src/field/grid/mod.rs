@@ -101,7 +101,7 @@
 //!   products of a chunk (five matrices and `M`) are **one launch**: thread `t` belongs
 //!   to the last product whose first thread is at most `t` (`OuterParams::products`).
 //!   On an H200 that made the demo's plain steps 1.27x faster and sparse-small's 1.31x
-//!   than six launches (README, "On an H200: the weight gradients in one launch"): the
+//!   than six launches (docs/journal.md, "On an H200: the weight gradients in one launch"): the
 //!   products are small, and launched one after another each waited for the last.
 //! * **The kept encoding** ([`GridConfig::keep_encoding`], on by default): the forward
 //!   of a training step ([`Field::forward_for_backward`], codegen's `ForwardKeep`)
@@ -237,7 +237,7 @@
 //!   issued back to back before the corner arithmetic (so the misses overlap), in the
 //!   forward and in the scatter, and the gradient lines read before the atomic adds.
 //!   Two interleaved rounds of `edgenerf speed --kernels` measured no difference
-//!   beyond the machine's noise (README, "Instant-NGP's default field"); not kept.
+//!   beyond the machine's noise (docs/journal.md, "Instant-NGP's default field"); not kept.
 //!   A sixth (2026-11-27, fifth stop), for the same field's TLB misses: lavapipe's
 //!   buffers on transparent huge pages (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`, which
 //!   makes glibc ask for them; up to 280 MB of huge pages seen during the run), three
@@ -352,7 +352,7 @@
 //!   each corner's features from its entry index instead of reading the table, and
 //!   drops the scatter, the rows and `outer`. CPU ms for 65 k samples
 //!   (`field_grid_throughput` and `_small`; the floor and this build interleaved, three
-//!   rounds; the issue's main, f239e83, from the same day's interleaved runs, README):
+//!   rounds; the issue's main, f239e83, from the same day's interleaved runs, docs/journal.md):
 //!
 //!   | field, pass | issue's main | now | floor | 5x the issue's main |
 //!   |---|---|---|---|---|
@@ -437,7 +437,7 @@ pub const SHARED_WEIGHTS4_CPU_FORWARD: u32 = 2048;
 pub const SAMPLES_PER_THREAD_CPU: u32 = 256;
 /// The same on a GPU, where few long-running threads leave the GPU latency-bound and
 /// many short ones contend on the atomics: on an H200, 128 ran the demo, sparse-small
-/// and the default field 1-5 % faster than 32, 64 or 256 (README, "On an H200: the
+/// and the default field 1-5 % faster than 32, 64 or 256 (docs/journal.md, "On an H200: the
 /// weight gradients in one launch").
 pub const SAMPLES_PER_THREAD_GPU: u32 = 128;
 /// Largest [`GridConfig::outer_samples_per_thread`].
@@ -503,7 +503,7 @@ pub struct GridConfig {
     /// adapter's storage-binding limit (128 MiB on lavapipe: about 100 k samples at the
     /// presets' field) and by the batch's capacity. 131072 lets a GPU run the presets'
     /// batches (capacity up to 86 k samples) in one chunk: on an H200 that gave 1-5 %
-    /// more steps/s than 65536 (README, "On an H200: the weight gradients in one
+    /// more steps/s than 65536 (docs/journal.md, "On an H200: the weight gradients in one
     /// launch").
     pub backward_chunk: u32,
     /// The training step's forward keeps each sample's encoding (and the normal path's

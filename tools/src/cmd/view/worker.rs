@@ -1,0 +1,150 @@
+//! The render thread of `edgenerf view`: the one owner of the GPU and the model (neither
+//! is `Sync`), fed by a queue where the newest request of each client wins, and the
+//! follower of a run in progress (the model is reloaded when the checkpoint's mtime
+//! changes).
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc;
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::Context;
+use edgenerf::data::{Camera, Scene};
+use edgenerf::gpu::{Gpu, GpuOptions};
+use edgenerf::train::model::RenderedView;
+use edgenerf::train::{Checkpoint, Model};
+
+/// Requests waiting for the render thread beyond which new ones are refused (503):
+/// each waiting request holds a connection.
+pub const MAX_QUEUED: usize = 32;
+
+/// What a handler asks the render thread for.
+pub struct Job {
+    /// Newest wins per key: the requesting tab and the kind of request (a frame of the
+    /// free camera, a dataset view for the side panel).
+    pub key: String,
+    pub camera: Camera,
+    pub reply: mpsc::Sender<Outcome>,
+}
+
+/// What comes back.
+pub enum Outcome {
+    /// The render, the checkpoint step it shows and the milliseconds it took.
+    Done { view: RenderedView, step: u64, ms: f64 },
+    /// A newer request of the same key replaced this one before it started.
+    Superseded,
+    /// The queue was full.
+    Busy,
+    Failed(String),
+}
+
+/// Shared between the handlers and the render thread.
+pub struct Queue {
+    jobs: Mutex<VecDeque<Job>>,
+    ready: Condvar,
+    /// The step of the model now loaded.
+    pub step: AtomicU64,
+    /// Reloads of the checkpoint since the start.
+    pub reloads: AtomicU64,
+}
+
+impl Queue {
+    pub fn new(step: u64) -> Arc<Queue> {
+        Arc::new(Queue { jobs: Mutex::new(VecDeque::new()), ready: Condvar::new(), step: AtomicU64::new(step), reloads: AtomicU64::new(0) })
+    }
+
+    /// Queues `job`, answering `Superseded` to a waiting job of the same key (it is
+    /// replaced in place, keeping its turn) and `Busy` when the queue is full.
+    pub fn push(&self, job: Job) {
+        let mut jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(old) = jobs.iter_mut().find(|j| j.key == job.key) {
+            let old = std::mem::replace(old, job);
+            let _ = old.reply.send(Outcome::Superseded);
+        } else if jobs.len() >= MAX_QUEUED {
+            let _ = job.reply.send(Outcome::Busy);
+            return;
+        } else {
+            jobs.push_back(job);
+        }
+        self.ready.notify_one();
+    }
+
+    /// The next job, or `None` after `timeout` without one.
+    fn pop(&self, timeout: Duration) -> Option<Job> {
+        let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
+        let (mut jobs, _) = self.ready.wait_timeout_while(jobs, timeout, |j| j.is_empty()).unwrap_or_else(|p| p.into_inner());
+        jobs.pop_front()
+    }
+}
+
+/// The model of the checkpoint at `path`, on `gpu`, for `scene`.
+fn load_model(gpu: &Gpu, scene: &Scene, path: &std::path::Path) -> anyhow::Result<(Model, u64)> {
+    let ckpt = Checkpoint::load(path)?;
+    let model = Model::from_checkpoint(gpu, scene, &ckpt).with_context(|| format!("loading the model of {}", path.display()))?;
+    Ok((model, ckpt.step))
+}
+
+fn mtime(path: &std::path::Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
+/// Starts the render thread: creates the GPU context and loads the model there, then
+/// answers jobs until the process ends. Returns once the model is loaded (or failed to).
+pub fn start(ckpt_path: PathBuf, scene: Arc<Scene>, gpu_opts: GpuOptions, queue: Arc<Queue>, follow: bool) -> anyhow::Result<String> {
+    let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<String>>();
+    std::thread::Builder::new()
+        .name("render".into())
+        .spawn(move || {
+            let setup = (|| -> anyhow::Result<(Gpu, Model, u64)> {
+                let gpu = Gpu::new(&gpu_opts)?;
+                let (model, step) = load_model(&gpu, &scene, &ckpt_path)?;
+                Ok((gpu, model, step))
+            })();
+            let (gpu, mut model, step) = match setup {
+                Ok(s) => s,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                    return;
+                }
+            };
+            queue.step.store(step, Ordering::SeqCst);
+            let _ = ready_tx.send(Ok(gpu.adapter().to_string()));
+            let mut seen = mtime(&ckpt_path);
+            let mut last_check = Instant::now();
+            loop {
+                let job = queue.pop(Duration::from_millis(500));
+                // A run in progress: a new checkpoint (renamed into place atomically)
+                // replaces the model; a failed load keeps the old one.
+                if follow && last_check.elapsed() >= Duration::from_millis(400) {
+                    last_check = Instant::now();
+                    let now = mtime(&ckpt_path);
+                    if now.is_some() && now != seen {
+                        seen = now;
+                        match load_model(&gpu, &scene, &ckpt_path) {
+                            Ok((m, step)) => {
+                                model = m;
+                                queue.step.store(step, Ordering::SeqCst);
+                                queue.reloads.fetch_add(1, Ordering::SeqCst);
+                            }
+                            Err(e) => {
+                                use std::io::Write;
+                                let _ = writeln!(std::io::stderr(), "view: keeping step {}: {e:#}", queue.step.load(Ordering::SeqCst));
+                            }
+                        }
+                    }
+                }
+                let Some(job) = job else { continue };
+                let t = Instant::now();
+                let outcome = match model.render_camera(&gpu, &scene, &job.camera) {
+                    Ok(view) => Outcome::Done { view, step: queue.step.load(Ordering::SeqCst), ms: t.elapsed().as_secs_f64() * 1e3 },
+                    Err(e) => Outcome::Failed(format!("{e:#}")),
+                };
+                // The handler may be gone (its client closed the tab): nothing to do.
+                let _ = job.reply.send(outcome);
+            }
+        })
+        .context("starting the render thread")?;
+    ready_rx.recv().context("the render thread stopped while loading")?
+}
