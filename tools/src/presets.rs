@@ -7,8 +7,9 @@
 //! `sparse-llff.toml`, DTU `sparse-dtu.toml`, Blender-format scenes `sparse-small.toml`;
 //! a nerfstudio or COLMAP capture gets the preset of the layout it loads as
 //! (`data::bounds`): a forward-facing one is an LLFF scene (`sparse-llff.toml`), an
-//! object-centric one gets `sparse-small.toml` (docs/guide/presets.md;
-//! docs/results/real-captures.md measures it on a capture without alpha).
+//! object-centric one gets `sparse-object.toml` (`sparse-small.toml` with an opacity
+//! penalty for captures without alpha; docs/guide/presets.md,
+//! docs/results/real-captures.md).
 
 use edgenerf::data::SceneFormat;
 
@@ -23,6 +24,8 @@ const SPARSE_SMALL: Preset =
     Preset { path: "tools/configs/sparse-small.toml", text: include_str!("../configs/sparse-small.toml") };
 const SPARSE_LLFF: Preset =
     Preset { path: "tools/configs/sparse-llff.toml", text: include_str!("../configs/sparse-llff.toml") };
+const SPARSE_OBJECT: Preset =
+    Preset { path: "tools/configs/sparse-object.toml", text: include_str!("../configs/sparse-object.toml") };
 const SPARSE_DTU: Preset =
     Preset { path: "tools/configs/sparse-dtu.toml", text: include_str!("../configs/sparse-dtu.toml") };
 
@@ -35,7 +38,7 @@ pub fn sparse_preset(format: SceneFormat, forward_facing: bool) -> Preset {
         SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf => SPARSE_DTU,
         SceneFormat::Blender => SPARSE_SMALL,
         SceneFormat::Nerfstudio | SceneFormat::Colmap if forward_facing => SPARSE_LLFF,
-        SceneFormat::Nerfstudio | SceneFormat::Colmap => SPARSE_SMALL,
+        SceneFormat::Nerfstudio | SceneFormat::Colmap => SPARSE_OBJECT,
     }
 }
 
@@ -46,13 +49,17 @@ mod tests {
 
     #[test]
     fn every_preset_parses_and_names_its_file() {
-        for (format, ff) in [(SceneFormat::Llff, true), (SceneFormat::DtuIdr, false), (SceneFormat::Blender, false), (SceneFormat::Colmap, false)] {
+        for (format, ff) in [(SceneFormat::Llff, true), (SceneFormat::DtuIdr, false), (SceneFormat::Blender, false), (SceneFormat::Colmap, false), (SceneFormat::Colmap, true)] {
             let p = sparse_preset(format, ff);
             RunConfig::from_text_for(p.text, true, p.path, None).unwrap();
             let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p.path);
             assert_eq!(std::fs::read_to_string(file).unwrap(), p.text, "{}", p.path);
         }
         assert_eq!(sparse_preset(SceneFormat::Colmap, true).path, SPARSE_LLFF.path);
-        assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_SMALL.path);
+        assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_OBJECT.path);
+        // The object preset is sparse-small.toml with its opacity penalty before it.
+        let small = SPARSE_SMALL.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
+        let object = SPARSE_OBJECT.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
+        assert_eq!(object, small, "sparse-object.toml's tables from [field] on must be sparse-small.toml's");
     }
 }

@@ -70,11 +70,16 @@ pub struct PriorConfig {
     /// forms in front of it. Applied through the photometric loss's `dL/d opacity`
     /// (`loss::photometric`); its value is not logged.
     pub sparsity: f32,
+    /// Steps over which the opacity penalty falls linearly from `sparsity` to 0 (0:
+    /// constant over the run). Early on it keeps fog from forming while the field finds
+    /// the object; later it would only erode the object's own opacity (a white
+    /// backdrop then shows through it).
+    pub sparsity_steps: u64,
 }
 
 impl Default for PriorConfig {
     fn default() -> Self {
-        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0 }
+        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0, sparsity_steps: 0 }
     }
 }
 
@@ -95,6 +100,14 @@ impl PriorConfig {
             return Err(format!("priors.occlusion_range must be in (0, 1] (a fraction of far - near), got {f}"));
         }
         Ok(())
+    }
+
+    /// The opacity penalty's weight at `step` (see [`PriorConfig::sparsity_steps`]).
+    pub fn sparsity_at(&self, step: u64) -> f32 {
+        match self.sparsity_steps {
+            0 => self.sparsity,
+            n => self.sparsity * (1.0 - step as f32 / n as f32).max(0.0),
+        }
     }
 
     /// Whether any term is on.
@@ -187,5 +200,19 @@ impl RayPriors {
             occlusion: (self.occlusion_scale as f64 * o) as f32,
             orientation: (self.orientation_scale as f64 * r) as f32,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::PriorConfig;
+
+    #[test]
+    fn the_opacity_penalty_falls_to_zero_over_its_steps() {
+        let constant = PriorConfig { sparsity: 0.04, ..Default::default() };
+        assert_eq!([constant.sparsity_at(0), constant.sparsity_at(10_000)], [0.04, 0.04]);
+        let falling = PriorConfig { sparsity: 0.04, sparsity_steps: 400, ..Default::default() };
+        assert_eq!([falling.sparsity_at(0), falling.sparsity_at(100), falling.sparsity_at(400), falling.sparsity_at(900)], [0.04, 0.03, 0.0, 0.0]);
+        assert!(PriorConfig { sparsity: -1.0, ..Default::default() }.validate().is_err());
     }
 }

@@ -394,7 +394,7 @@ impl Pipeline {
             alpha,
             loaded_over: *loaded_over,
         });
-        let sparsity = model.config.priors.sparsity;
+        let sparsity = model.config.priors.sparsity_at(plan.step);
         self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, sparsity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
