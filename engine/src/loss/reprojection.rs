@@ -157,6 +157,12 @@ impl ReprojectionViews {
     pub fn bytes(&self) -> u64 {
         4 * self.words.len() as u64
     }
+
+    /// Bytes [`ReprojectionViews::pack`] makes of views of these `(width, height)`
+    /// sizes, known before any image is read or blurred.
+    pub fn packed_bytes(sizes: impl Iterator<Item = (u32, u32)>) -> u64 {
+        sizes.map(|(w, h)| 4 * (HEADER as u64 + w as u64 * h as u64)).sum()
+    }
 }
 
 /// The near plane and scale of NDC's inverse map; zeros without NDC.

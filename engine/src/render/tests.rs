@@ -287,8 +287,9 @@ fn forward_matches_reference_for_every_background() {
 #[test]
 fn learned_background_is_read_per_ray_from_aux() {
     // Background::Learned composites the colour the caller wrote into each ray's aux,
-    // in the forward pass and, through u_i, in the backward (its colours enter
-    // nowhere else): the same outputs and gradients as a colour background per ray.
+    // and keeps it there: the backward reads a ray's background from aux whatever the
+    // mode, so the finite-difference tests of the colour backgrounds cover its
+    // gradients once the forward matches the reference and aux holds the caller's colour.
     let gpu = test_gpu(false);
     let mut rng = SplitMix64::new(21);
     let h = random_batch(&mut rng, 300, 32);

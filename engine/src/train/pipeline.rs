@@ -563,15 +563,8 @@ pub struct LossReads {
 /// training images exceed what one storage binding of the device holds.
 fn reprojection_term(gpu: &Gpu, scene: &Scene, n: u32, blur: f32) -> Result<(Reprojection, Vec<u32>), TrainError> {
     let error = |message: String| TrainError::Config { source_name: "config".into(), message };
+    check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
     let views = super::reprojection_views::reprojection_views(scene, blur).map_err(error)?;
-    let limit = gpu.limits().max_storage_buffer_binding_size;
-    if views.bytes() > limit {
-        return Err(error(format!(
-            "the reprojection term keeps every training image on the GPU ({} MB), more than one storage binding of this device holds ({} MB); train on fewer or smaller views, or set reg.lambda_reprojection = 0",
-            views.bytes() >> 20,
-            limit >> 20
-        )));
-    }
     let mut position = vec![u32::MAX; scene.views.len()];
     for (i, &v) in scene.split.train.iter().enumerate() {
         position[v] = i as u32;
@@ -579,7 +572,46 @@ fn reprojection_term(gpu: &Gpu, scene: &Scene, n: u32, blur: f32) -> Result<(Rep
     Ok((Reprojection::new(gpu, &views, n)?, position))
 }
 
+/// Refuses a scene whose training images, packed for the cross-view reprojection term
+/// (which keeps them all on the GPU), exceed `binding_limit` bytes (one storage binding
+/// of the device): from the image sizes alone, so `train` can say so before it spends
+/// time on edge detection (the CLI calls it first; [`Pipeline::new`] again).
+pub fn check_reprojection_fits(scene: &Scene, binding_limit: u64) -> Result<(), TrainError> {
+    let sizes = scene.train_views().map(|v| (v.camera.width, v.camera.height));
+    let bytes = crate::loss::reprojection::ReprojectionViews::packed_bytes(sizes);
+    if bytes > binding_limit {
+        return Err(TrainError::Config {
+            source_name: "config".into(),
+            message: format!(
+                "the reprojection term keeps every training image on the GPU ({} MB), more than one storage binding of this device holds ({} MB); train on fewer or smaller views (--llff-factor N downsamples on load), or set reg.lambda_reprojection = 0",
+                bytes >> 20,
+                binding_limit >> 20
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// The list of live samples and its compaction, for batches of `capacity` samples.
 fn live_list(gpu: &Gpu, capacity: u32) -> Result<(LiveSamples, LiveCompaction), TrainError> {
     Ok((LiveSamples::new(gpu, capacity)?, LiveCompaction::new(gpu, capacity)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::check_reprojection_fits;
+    use crate::data::{LoadOptions, Scene};
+    use crate::loss::reprojection::ReprojectionViews;
+
+    #[test]
+    fn a_scene_too_large_for_the_reprojection_term_is_refused_from_its_sizes() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/creases");
+        // Cameras only: the check needs no pixels (it runs before edge detection).
+        let scene = Scene::load(dir, &LoadOptions { views: Some(3), load_images: false, ..Default::default() }).unwrap();
+        let bytes = ReprojectionViews::packed_bytes(scene.train_views().map(|v| (v.camera.width, v.camera.height)));
+        assert!(bytes > 3 * 4 * 128 * 128, "{bytes}");
+        check_reprojection_fits(&scene, bytes).unwrap();
+        let err = check_reprojection_fits(&scene, bytes - 1).unwrap_err().to_string();
+        assert!(err.contains("reg.lambda_reprojection = 0") && err.contains("fewer or smaller views"), "{err}");
+    }
 }

@@ -53,6 +53,9 @@ fn rays_at_depth(scene: &Scene, n: usize, scale: f64, seed: u64) -> Vec<ReprojRa
 fn packed_views_project_as_the_cameras_do() {
     let scene = three_view_creases();
     let views = reprojection_views(&scene, 0.0).unwrap();
+    // The size known before packing (what train checks against the device) is the packed one.
+    let sizes = scene.train_views().map(|v| (v.camera.width, v.camera.height));
+    assert_eq!(crate::loss::reprojection::ReprojectionViews::packed_bytes(sizes), views.bytes());
     assert_eq!(views.n_views, 3);
     let (w, h) = scene.image_size();
     assert_eq!(views.words.len(), 3 * HEADER + 3 * (w * h) as usize);
