@@ -28,7 +28,7 @@ use crate::field::NamedArray;
 
 use super::TrainError;
 use super::config::RunConfig;
-use super::output::write_atomic;
+use super::atomic_file::write_atomic;
 
 pub const FORMAT: &str = "edgenerf-checkpoint";
 pub const VERSION: &str = "2";

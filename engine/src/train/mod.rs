@@ -62,6 +62,7 @@
 //!   rebuilt from the field. Rendering a checkpoint builds a [`Model`] only: no
 //!   optimizer, loss kernels or batch buffers.
 
+pub mod atomic_file;
 pub mod checkpoint;
 pub mod config;
 pub mod evaluate;

@@ -1,10 +1,7 @@
 //! Files a run writes: the renders of a view (RGB PNG, depth EXR (`sum w t`) and a
 //! colourised PNG (`depth / opacity` where opacity > 0.1), normals EXR and PNG, opacity
-//! PNG), and the atomic replacement of a file, which checkpoints, `config.json` and
-//! `metrics.json` use.
-//!
-//! Invariant: [`write_atomic`] never leaves a half-written file under the final name
-//! (written beside it, then renamed), so an interrupted write keeps the previous file.
+//! PNG). The atomic replacement of a file that checkpoints, `config.json` and
+//! `metrics.json` use is [`super::atomic_file`]'s (re-exported here).
 
 use std::path::Path;
 
@@ -12,22 +9,8 @@ use crate::data::{ImageRgb, save_depth_exr, save_normal_exr};
 use crate::viz;
 
 use super::TrainError;
+pub use super::atomic_file::write_atomic;
 use super::model::RenderedView;
-
-/// Replaces `path` with `bytes` atomically: written to `<path>.partial`, then renamed.
-/// A failed write removes the `.partial` file (a full disk kept it, filling the disk).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".partial");
-    let tmp = std::path::PathBuf::from(tmp);
-    let written = std::fs::write(&tmp, bytes)
-        .map_err(|e| TrainError::io(&tmp, e))
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e)));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written
-}
 
 /// An error writing the output file `path`, said as one (an image library's "bad
 /// OpenEXR file ...: No space left on device" blamed an input).
@@ -77,19 +60,4 @@ pub fn write_view(dir: &Path, name: &str, r: &RenderedView) -> Result<(), TrainE
     png(viz::normal_image(w, h, &r.unit_normals()), "normal.png")?;
     png(viz::grey_image(w, h, &r.opacity), "opacity.png")?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    /// A write that fails leaves no `.partial` file behind (a full disk kept one).
-    #[test]
-    fn a_failed_write_leaves_no_partial_file() {
-        let dir = tempfile::tempdir().unwrap();
-        // The rename fails: a directory that is not empty stands at the final name.
-        let target = dir.path().join("metrics.json");
-        std::fs::create_dir_all(target.join("x")).unwrap();
-        assert!(super::write_atomic(&target, b"{}").is_err());
-        assert!(!dir.path().join("metrics.json.partial").exists());
-        assert!(target.join("x").is_dir(), "what stood there is untouched");
-    }
 }
