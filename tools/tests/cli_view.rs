@@ -136,7 +136,9 @@ fn view_frame_at_a_test_camera_equals_render() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("renders");
     render_test_views(run, &out);
-    let v = Viewer::start(run, &[]);
+    // Frames of 6 strips (23 rows of 128 pixels, the last one 13): the strips together
+    // are the whole frame.
+    let v = Viewer::start(run, &["--strip-rays", "3000"]);
     let a = &v.addr;
     let info = get(a, "/api/info").json();
     let views = info["views"].as_array().unwrap();
