@@ -98,8 +98,8 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     drop(ckpt);
 
     let queue = Queue::new(0);
-    let adapter = worker::start(ckpt_path.clone(), scene.clone(), gpu_opts.clone(), queue.clone(), !args.no_follow, args.strip_rays)?;
-    let info = info_json(&scene, &run_dir, &adapter).to_string();
+    let (adapter_name, adapter) = worker::start(ckpt_path.clone(), scene.clone(), gpu_opts.clone(), queue.clone(), !args.no_follow, args.strip_rays)?;
+    let info = info_json(&scene, &run_dir, &adapter_name).to_string();
     let state = Arc::new(State { scene, queue, info, log_path: run_dir.join("log.csv"), edges, view_cache: Mutex::new(None) });
 
     let addr = format!("{}:{}", args.host, args.port);

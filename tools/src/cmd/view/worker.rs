@@ -146,7 +146,8 @@ fn mtime(path: &std::path::Path) -> Option<SystemTime> {
 }
 
 /// Starts the render thread: creates the GPU context and loads the model there, then
-/// answers jobs until the process ends. Returns once the model is loaded (or failed to).
+/// answers jobs until the process ends. Returns once the model is loaded (or failed to):
+/// the adapter's name and its whole description.
 pub fn start(
     ckpt_path: PathBuf,
     scene: Arc<Scene>,
@@ -154,8 +155,8 @@ pub fn start(
     queue: Arc<Queue>,
     follow: bool,
     strip_rays: u32,
-) -> anyhow::Result<String> {
-    let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<String>>();
+) -> anyhow::Result<(String, String)> {
+    let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<(String, String)>>();
     std::thread::Builder::new()
         .name("render".into())
         .spawn(move || {
@@ -172,7 +173,7 @@ pub fn start(
                 }
             };
             queue.step.store(step, Ordering::SeqCst);
-            let _ = ready_tx.send(Ok(gpu.adapter().to_string()));
+            let _ = ready_tx.send(Ok((gpu.adapter().name.clone(), gpu.adapter().to_string())));
             let mut seen = mtime(&ckpt_path);
             let mut last_check = Instant::now();
             loop {
