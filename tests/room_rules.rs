@@ -547,3 +547,95 @@ fn print_room_graph() {
         println!("{from:>8} -> {to:<8} code {code:>3}  tests {tests:>3}  (first: {first})");
     }
 }
+
+/// Rooms whose own modules (the files and folders directly under `engine/src/<room>/`)
+/// must import each other without a circle. `train` joins when its circle (checkpoint,
+/// output, model) is untangled.
+const ACYCLIC_ROOMS: &[&str] = &["loss", "train"];
+
+/// The arrows between the modules of `room` in code (not in `#[cfg(test)]` items or test
+/// modules): `super::name` at a file's top level and `crate::<room>::name`, groups included.
+fn module_arrows(room: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let src = repo().join("engine/src");
+    let mut files = Vec::new();
+    rs_files(&src.join(room), &mut files);
+    let module_of = |f: &Path| module_path(f.strip_prefix(&src).unwrap());
+    let siblings: BTreeSet<String> = files.iter().filter_map(|f| module_of(f).get(1).cloned()).collect();
+    let names: BTreeSet<&str> = siblings.iter().map(String::as_str).collect();
+    let parsed: Vec<(Vec<String>, Vec<char>)> =
+        files.iter().map(|f| (module_of(f), code_only(&std::fs::read_to_string(f).unwrap()))).collect();
+    let mut test_modules: BTreeSet<Vec<String>> = BTreeSet::new();
+    for (module, code) in &parsed {
+        for name in test_items(code).1 {
+            test_modules.insert(module.iter().cloned().chain([name]).collect());
+        }
+    }
+    let mut arrows: BTreeMap<String, BTreeSet<String>> = siblings.iter().map(|s| (s.clone(), BTreeSet::new())).collect();
+    for (module, code) in &parsed {
+        let Some(from) = module.get(1) else { continue }; // the room's mod.rs
+        if (1..=module.len()).any(|n| test_modules.contains(&module[..n])) {
+            continue;
+        }
+        let test_ranges = test_items(code).0;
+        let mut found = Vec::new();
+        for (needle, ups) in [(format!("crate::{room}::"), 0), ("super::".to_string(), module.len() - 1)] {
+            let needle: Vec<char> = needle.chars().collect();
+            let mut i = 0;
+            while i + needle.len() <= code.len() {
+                if code[i..i + needle.len()] != needle[..] || (i > 0 && (is_ident(code[i - 1]) || code[i - 1] == ':')) {
+                    i += 1;
+                    continue;
+                }
+                let (mut j, mut n) = (i, 0);
+                while j + needle.len() <= code.len() && code[j..j + needle.len()] == needle[..] {
+                    n += 1;
+                    j = skip_ws(code, j + needle.len());
+                }
+                if ups == 0 || n == ups {
+                    found.extend(rooms_after(code, j, &names).into_iter().filter(|&(_, at)| !test_ranges.iter().any(|&(a, b)| a <= at && at < b)));
+                }
+                i = j;
+            }
+        }
+        for (to, _) in found {
+            if &to != from {
+                arrows.get_mut(from).unwrap().insert(to);
+            }
+        }
+    }
+    arrows
+}
+
+/// A circle of `arrows` (its modules in order, the first repeated at the end), if any.
+fn find_circle(arrows: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(m: &str, arrows: &BTreeMap<String, BTreeSet<String>>, path: &mut Vec<String>, done: &mut BTreeSet<String>) -> Option<Vec<String>> {
+        if let Some(at) = path.iter().position(|p| p == m) {
+            return Some(path[at..].iter().cloned().chain([m.to_string()]).collect());
+        }
+        if !done.insert(m.to_string()) {
+            return None;
+        }
+        path.push(m.to_string());
+        for to in arrows.get(m).into_iter().flatten() {
+            if let Some(c) = visit(to, arrows, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        None
+    }
+    let mut done = BTreeSet::new();
+    arrows.keys().find_map(|m| visit(m, arrows, &mut Vec::new(), &mut done))
+}
+
+#[test]
+fn the_modules_of_a_room_import_each_other_without_a_circle() {
+    for room in ACYCLIC_ROOMS {
+        let arrows = module_arrows(room);
+        let n: usize = arrows.values().map(BTreeSet::len).sum();
+        assert!(n >= 3, "the scan found only {n} arrows between the modules of {room}: is it broken? {arrows:?}");
+        if let Some(circle) = find_circle(&arrows) {
+            panic!("the modules of {room} import each other in a circle: {} (move what they share into a module below them)", circle.join(" -> "));
+        }
+    }
+}

@@ -35,7 +35,7 @@ struct Params {
     lambda_normal: f32,
     tau_depth: f32,
     tau_normal: f32,
-    // Given termination, opacity is floored here (edge_reg.rs: OPACITY_FLOOR).
+    // Given termination, opacity is floored here (depth_estimate.rs: OPACITY_FLOOR).
     opacity_floor: f32,
     _pad0: u32,
     _pad1: u32,

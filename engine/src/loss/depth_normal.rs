@@ -51,7 +51,7 @@
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::{GpuRay, RayOutput};
 
-use super::edge_reg::{DepthEstimate, OPACITY_FLOOR};
+use super::depth_estimate::{DepthEstimate, OPACITY_FLOOR};
 
 /// The per-ray residual of `L_dn` (`reg.depth_normal_residual`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -68,6 +68,7 @@
 
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
+pub use super::depth_estimate::{DepthEstimate, OPACITY_FLOOR};
 use super::depth_normal::{DepthNormalResidual, DepthNormalTerm};
 use super::planarity::PlanarityTerm;
 
@@ -99,25 +100,6 @@ pub enum DepthTarget {
     /// Any plane: the 2x2 patch's second difference.
     Plane,
 }
-
-/// Which depth of a ray `L_z` regularizes (see the module doc).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DepthEstimate {
-    /// `sum_i w_i t_i`, the paper's integral (not divided by opacity): the loss can
-    /// lower it by changing a ray's opacity as well as where the ray terminates.
-    #[default]
-    Expected,
-    /// Depth given termination, `sum_i w_i t_i / opacity` (the authors' code): only
-    /// where the ray ends counts. Opacity is floored at [`OPACITY_FLOOR`].
-    GivenTermination,
-}
-
-/// Below this opacity a ray is mostly background and its depth given termination an
-/// average over a trace of weights: the estimate divides by this floor instead, and
-/// the gradient into opacity is zero there (the authors clip the distance to the
-/// ray's range instead, with a gradient that grows as `1 / opacity`).
-pub const OPACITY_FLOOR: f32 = 0.1;
 
 /// Bounds of the planarity settings: the triplet rays are allocated with the batch.
 pub const MAX_PLANARITY_TRIPLETS: u32 = 1 << 16;

@@ -6,10 +6,13 @@
 //! the same patches ([`depth_normal`]), their long-range planarity on triplets of
 //! pixels inside non-edge regions ([`planarity`]), the cross-view photometric
 //! consistency of the rendered depth ([`reprojection`]) and RegNeRF's depth total
-//! variation on patches from random poses ([`depth_tv`]). Invariant: a loss *writes* or *adds*
+//! variation on patches from random poses ([`depth_tv`]). The depth the edge-guided
+//! terms regularize and its opacity floor live below all three in [`depth_estimate`].
+//! Invariant: a loss *writes* or *adds*
 //! `dL/d RayOutput` per ray into one shared gradient buffer, never touching sampler,
 //! field or renderer state; the photometric loss writes (it runs first), the others add.
 
+pub mod depth_estimate;
 pub mod depth_normal;
 pub mod depth_tv;
 pub mod edge_reg;

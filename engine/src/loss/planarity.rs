@@ -70,7 +70,7 @@
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
 
-use super::edge_reg::OPACITY_FLOOR;
+use super::depth_estimate::OPACITY_FLOOR;
 
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/planarity.wgsl",

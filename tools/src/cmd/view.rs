@@ -57,6 +57,10 @@ pub struct Args {
     /// Do not reload the checkpoint when training writes a new one.
     #[arg(long)]
     no_follow: bool,
+    /// Rays per strip of a frame; a newer request is looked for between strips (tests
+    /// make frames of several strips with it).
+    #[arg(long, hide = true, default_value_t = worker::STRIP_RAYS, value_parser = clap::value_parser!(u32).range(1..))]
+    strip_rays: u32,
 }
 
 /// What every handler thread reads.
@@ -94,8 +98,8 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     drop(ckpt);
 
     let queue = Queue::new(0);
-    let adapter = worker::start(ckpt_path.clone(), scene.clone(), gpu_opts.clone(), queue.clone(), !args.no_follow)?;
-    let info = info_json(&scene, &run_dir, &adapter).to_string();
+    let (adapter_name, adapter) = worker::start(ckpt_path.clone(), scene.clone(), gpu_opts.clone(), queue.clone(), !args.no_follow, args.strip_rays)?;
+    let info = info_json(&scene, &run_dir, &adapter_name).to_string();
     let state = Arc::new(State { scene, queue, info, log_path: run_dir.join("log.csv"), edges, view_cache: Mutex::new(None) });
 
     let addr = format!("{}:{}", args.host, args.port);

@@ -71,12 +71,67 @@ impl Queue {
         self.ready.notify_one();
     }
 
+    /// Whether a job of `key` is waiting (it is newer than the one being rendered).
+    fn has_newer(&self, key: &str) -> bool {
+        self.jobs.lock().unwrap_or_else(|p| p.into_inner()).iter().any(|j| j.key == key)
+    }
+
     /// The next job, or `None` after `timeout` without one.
     fn pop(&self, timeout: Duration) -> Option<Job> {
         let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
         let (mut jobs, _) = self.ready.wait_timeout_while(jobs, timeout, |j| j.is_empty()).unwrap_or_else(|p| p.into_inner());
         jobs.pop_front()
     }
+}
+
+/// Rays per strip of a frame (`--strip-rays`): a newer request is looked for between strips.
+pub const STRIP_RAYS: u32 = 16384;
+
+/// Renders `cam` as horizontal strips of about `strip_rays` rays (each strip's camera
+/// has the same rays as those rows of the whole frame: the principal point moved up by
+/// the strip's first row), giving up (`None`) when `superseded()` says a newer request
+/// waits: a full-resolution LLFF frame takes seconds on a CPU, and a drag that starts
+/// meanwhile should not wait for it.
+fn render_in_strips(
+    model: &mut Model,
+    gpu: &Gpu,
+    scene: &Scene,
+    cam: &Camera,
+    strip_rays: u32,
+    superseded: impl Fn() -> bool,
+) -> Result<Option<RenderedView>, edgenerf::train::TrainError> {
+    let rows = (strip_rays / cam.width.max(1)).max(1);
+    if rows >= cam.height {
+        return model.render_camera(gpu, scene, cam).map(Some);
+    }
+    let n = (cam.width * cam.height) as usize;
+    let mut out = RenderedView {
+        width: cam.width,
+        height: cam.height,
+        rgb: Vec::with_capacity(n),
+        opacity: Vec::with_capacity(n),
+        depth: Vec::with_capacity(n),
+        z_depth: Vec::with_capacity(n),
+        normal: Vec::with_capacity(n),
+        samples: 0,
+    };
+    let mut y0 = 0;
+    while y0 < cam.height {
+        if y0 > 0 && superseded() {
+            return Ok(None);
+        }
+        let h = rows.min(cam.height - y0);
+        let strip = Camera { height: h, cy: cam.cy - y0 as f32, ..*cam };
+        let r = model.render_camera(gpu, scene, &strip)?;
+        out.rgb.extend_from_slice(&r.rgb);
+        out.opacity.extend_from_slice(&r.opacity);
+        out.depth.extend_from_slice(&r.depth);
+        out.z_depth.extend_from_slice(&r.z_depth);
+        out.normal.extend_from_slice(&r.normal);
+        out.samples += r.samples;
+        y0 += h;
+    }
+    Ok(Some(out))
 }
 
 /// The model of the checkpoint at `path`, on `gpu`, for `scene`.
@@ -91,9 +146,17 @@ fn mtime(path: &std::path::Path) -> Option<SystemTime> {
 }
 
 /// Starts the render thread: creates the GPU context and loads the model there, then
-/// answers jobs until the process ends. Returns once the model is loaded (or failed to).
-pub fn start(ckpt_path: PathBuf, scene: Arc<Scene>, gpu_opts: GpuOptions, queue: Arc<Queue>, follow: bool) -> anyhow::Result<String> {
-    let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<String>>();
+/// answers jobs until the process ends. Returns once the model is loaded (or failed to):
+/// the adapter's name and its whole description.
+pub fn start(
+    ckpt_path: PathBuf,
+    scene: Arc<Scene>,
+    gpu_opts: GpuOptions,
+    queue: Arc<Queue>,
+    follow: bool,
+    strip_rays: u32,
+) -> anyhow::Result<(String, String)> {
+    let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<(String, String)>>();
     std::thread::Builder::new()
         .name("render".into())
         .spawn(move || {
@@ -110,7 +173,7 @@ pub fn start(ckpt_path: PathBuf, scene: Arc<Scene>, gpu_opts: GpuOptions, queue:
                 }
             };
             queue.step.store(step, Ordering::SeqCst);
-            let _ = ready_tx.send(Ok(gpu.adapter().to_string()));
+            let _ = ready_tx.send(Ok((gpu.adapter().name.clone(), gpu.adapter().to_string())));
             let mut seen = mtime(&ckpt_path);
             let mut last_check = Instant::now();
             loop {
@@ -137,8 +200,9 @@ pub fn start(ckpt_path: PathBuf, scene: Arc<Scene>, gpu_opts: GpuOptions, queue:
                 }
                 let Some(job) = job else { continue };
                 let t = Instant::now();
-                let outcome = match model.render_camera(&gpu, &scene, &job.camera) {
-                    Ok(view) => Outcome::Done { view, step: queue.step.load(Ordering::SeqCst), ms: t.elapsed().as_secs_f64() * 1e3 },
+                let outcome = match render_in_strips(&mut model, &gpu, &scene, &job.camera, strip_rays, || queue.has_newer(&job.key)) {
+                    Ok(Some(view)) => Outcome::Done { view, step: queue.step.load(Ordering::SeqCst), ms: t.elapsed().as_secs_f64() * 1e3 },
+                    Ok(None) => Outcome::Superseded,
                     Err(e) => Outcome::Failed(format!("{e:#}")),
                 };
                 // The handler may be gone (its client closed the tab): nothing to do.
