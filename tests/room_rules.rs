@@ -549,8 +549,8 @@ fn print_room_graph() {
 }
 
 /// Rooms whose own modules (the files and folders directly under `engine/src/<room>/`)
-/// must import each other without a circle. `train` joins when its circle (checkpoint,
-/// output, model) is untangled.
+/// must import each other without a circle (`train`'s checkpoint / output / model circle
+/// was untangled by `train/atomic_file.rs`).
 const ACYCLIC_ROOMS: &[&str] = &["loss", "train"];
 
 /// The arrows between the modules of `room` in code (not in `#[cfg(test)]` items or test
