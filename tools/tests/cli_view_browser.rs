@@ -222,13 +222,27 @@ fn view_in_headless_chromium() {
         let shown = s.frame_pixels();
         assert!(max_diff(&shown, &want) <= 1, "the page's frame at test view {} differs from render's by {}/255", t["name"], max_diff(&shown, &want));
         // The side panel filled in: metrics and its images loaded.
-        wait_for(120, "the view panel's metrics and images", || {
+        let t = std::time::Instant::now();
+        loop {
             let v = s.js(
                 "const imgs = [...document.querySelectorAll('#panel-grid img')];
-                 return [document.getElementById('panel-metrics').textContent, imgs.length, imgs.every(i => i.complete && i.naturalWidth > 0)];",
+                 return [document.getElementById('panel-metrics').textContent, imgs.length,
+                         imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.src)];",
             );
-            (v[0].as_str().unwrap_or("").contains("PSNR") && v[1].as_u64().unwrap_or(0) >= 6 && v[2] == true).then_some(())
-        });
+            if v[0].as_str().unwrap_or("").contains("PSNR") && v[1].as_u64().unwrap_or(0) >= 6 && v[2].as_array().is_some_and(|a| a.is_empty()) {
+                break;
+            }
+            if t.elapsed().as_secs() >= 120 {
+                let entries = s.js("return performance.getEntriesByType('resource').map(e => [e.name, e.responseStatus, Math.round(e.startTime), Math.round(e.duration)]);");
+                let direct: Vec<String> = v[2].as_array().unwrap().iter().map(|u| {
+                    let path = u.as_str().unwrap().splitn(4, '/').nth(3).unwrap_or("");
+                    let r = view_support::get(&viewer.addr, &format!("/{path}"));
+                    format!("{path}: {} {} bytes", r.status, r.body.len())
+                }).collect();
+                panic!("the view panel did not fill in 120 s (metrics, images, those not loaded): {v}\nresources: {entries}\ndirect: {direct:?}");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
 
         // No console errors or warnings from the page through all of it.
         let bad: Vec<Value> = s.console().into_iter().filter(|e| e["level"] == "SEVERE" || e["level"] == "WARNING").collect();

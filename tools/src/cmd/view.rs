@@ -35,8 +35,10 @@ use worker::{Job, Outcome, Queue};
 /// The page, embedded in the binary (no build step, no files served from disk).
 const INDEX_HTML: &str = include_str!("../../assets/viewer/index.html");
 
-/// Handler threads: requests waiting for a render each hold one.
-const HANDLERS: usize = 8;
+/// Handler threads: requests waiting for a render each hold one, so there are more than
+/// the queue's [`worker::MAX_QUEUED`] plus the one rendering, and `/api/status` or the
+/// page itself are answered however many frames wait.
+const HANDLERS: usize = worker::MAX_QUEUED + 16;
 /// Largest frame (pixels) a request may ask for.
 const MAX_PIXELS: u64 = 4096 * 4096;
 
