@@ -95,6 +95,49 @@ fn training_raises_test_psnr_well_above_untrained() {
     assert!(r.depth.iter().all(|d| d.is_finite()));
 }
 
+/// The visibility pass with `min_alpha = 0` and the renderer's own termination
+/// threshold keeps exactly the samples the renderer composites, so a run with it
+/// trains as one without it (the same losses, to float noise) on fewer field samples;
+/// its renders match too. A threshold of 0.3 makes rays terminate within a few dozen
+/// steps; with `min_alpha` the pass also drops faint samples.
+#[test]
+fn the_exact_visibility_pass_trains_as_without_it_on_fewer_samples() {
+    let run = |settings: &[&str]| {
+        let mut config = tiny_config("smooth", 40);
+        for s in ["render.transmittance_threshold=0.3", "sampler.visibility.min_transmittance=0.3"].iter().chain(settings) {
+            config.set(s).unwrap();
+        }
+        let mut trainer = Trainer::new(test_gpu(false), load(&config), config).unwrap();
+        let stats: Vec<_> = (0..40).map(|_| trainer.step().unwrap()).collect();
+        let (eval, _) = trainer.evaluate().unwrap();
+        (stats, eval)
+    };
+    let off = ["sampler.visibility.train=false", "sampler.visibility.render=false"];
+    let (plain, plain_eval) = run(&off);
+    let (exact, exact_eval) = run(&["sampler.visibility.train=true", "sampler.visibility.render=true"]);
+    for (a, b) in plain.iter().zip(&exact) {
+        assert_eq!(a.marched_samples_per_ray, a.samples_per_ray, "without the pass the field runs on every marched sample");
+        // Float-atomic gradient sums land in another order each run, so the
+        // trajectories drift apart slowly; a step that dropped a visible sample or kept
+        // a batch's cut rays would differ at once.
+        let close = (a.loss - b.loss).abs() <= 2e-3 * a.loss.abs() + 1e-6;
+        assert!(close || a.step > 10, "step {}: loss {} without the pass, {} with it", a.step, a.loss, b.loss);
+        assert!(b.samples_per_ray <= b.marched_samples_per_ray);
+    }
+    let last = exact.last().unwrap();
+    assert!(
+        last.samples_per_ray < 0.9 * last.marched_samples_per_ray,
+        "the pass dropped samples past termination: {} of {} per ray",
+        last.samples_per_ray,
+        last.marched_samples_per_ray
+    );
+    assert!((plain_eval.mean_psnr - exact_eval.mean_psnr).abs() < 0.1, "{} vs {}", plain_eval.mean_psnr, exact_eval.mean_psnr);
+    assert!(exact_eval.mean_samples_per_ray < plain_eval.mean_samples_per_ray);
+    // Faint samples dropped too: fewer still.
+    let (faint, _) = run(&["sampler.visibility.train=true", "sampler.visibility.min_alpha=0.01", "sampler.visibility.min_alpha_start_step=10"]);
+    assert!(faint.last().unwrap().samples_per_ray < last.samples_per_ray, "min_alpha drops faint samples");
+}
+
 /// PSNR of test view `view` rendered at `size x size` against its image area-averaged
 /// to that size: the test PSNR at a fraction of the pixels, cheap enough to take before
 /// and after training a slow backend on a CPU.

@@ -82,6 +82,15 @@ pub trait Field {
     fn record_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
     -> Result<(), GpuError>;
 
+    /// The post-activation density of every sample of `batch` into the `w` of
+    /// `out.rgb_density[..count[0]]` (the sampler's visibility pass,
+    /// [`crate::sampler::visibility`]); the other components and `out.normal` are
+    /// unspecified. The density equals what [`Field::record_forward`] writes. By default
+    /// the whole forward; a backend with a cheaper density-only path overrides it.
+    fn record_sample_density(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs) -> Result<(), GpuError> {
+        self.record_forward(enc, batch, out, false)
+    }
+
     /// [`Field::record_forward`] in its own submission (does not wait).
     fn forward(&mut self, gpu: &Gpu, batch: &SampleBatch, out: &FieldOutputs, normals: bool) -> Result<(), GpuError> {
         gpu.submit_recorded(|enc| self.record_forward(enc, batch, out, normals))

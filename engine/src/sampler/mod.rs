@@ -4,7 +4,9 @@
 //! ([`bricks`]), the per-ray occupied intervals ([`intervals`]), sample placement and
 //! compaction ([`Sampler`]), the prefix sum that compacts ([`scan`]), and the drop of
 //! the rays the batch capacity cut from the losses ([`truncated`]), and the list of the
-//! samples that carry gradient for the field's backward ([`live`]). Kernels live
+//! samples that carry gradient for the field's backward ([`live`]), and the
+//! visibility pass that keeps, of the marched samples, those a ray can still see
+//! ([`visibility`]). Kernels live
 //! under `kernels/sampler/`; each has exactly one owner here:
 //!
 //! | kernel | owner |
@@ -15,6 +17,7 @@
 //! | `sampler/march.wgsl` | [`march`] (count / write samples) |
 //! | `sampler/truncated.wgsl` | [`truncated`] (zero the loss weights of cut rays) |
 //! | `sampler/live.wgsl` | [`live`] (list the samples that carry gradient) |
+//! | `sampler/visibility.wgsl` | [`visibility`] (keep the samples a ray can see) |
 //! | `sampler/common.wgsl` | include only: grid geometry, slab test, PCG hash |
 //!
 //! # How the train loop drives it
@@ -48,8 +51,9 @@
 //!   threshold: empty space that training rays cross. It cannot skip space behind the
 //!   first surface, where no ray's gradient ever lowers the untrained field's density
 //!   (about 1, above the threshold at coarse steps); those samples carry weight ~0, and
-//!   only a transmittance cut-off (nerfacc's `early_stop_eps`, not implemented) would
-//!   drop them. Forward-facing scenes, whose rays end on the box's far wall, are
+//!   only a transmittance cut-off drops them: the visibility pass ([`visibility`], off
+//!   by default; `sampler.visibility`), which pays for a density-only pass over every
+//!   marched sample. Forward-facing scenes, whose rays end on the box's far wall, are
 //!   mostly such space: there the grid saves 8-11 % of the test views' samples, on
 //!   the object scenes 70-80 % (README, "Dense views: the engine's baseline"). The
 //!   EMA time constant (`decay` per `update_interval` steps) should be short against
@@ -87,12 +91,14 @@ pub mod march;
 pub mod scan;
 pub mod truncated;
 pub mod live;
+pub mod visibility;
 
 pub use occupancy::{OccupancyQuery, OccupancyUpdate, OccupancyGrid};
 pub use march::{March, Sampler};
 pub use scan::ExclusiveScan;
 pub use truncated::DropTruncated;
 pub use live::LiveCompaction;
+pub use visibility::{Visibility, VisibilityPass};
 
 use serde::{Deserialize, Serialize};
 
@@ -162,6 +168,56 @@ pub struct SamplerConfig {
     /// grey fog, which measured -0.3 dB on `occlusion` (3 views), +0.05 dB on `room`,
     /// +0.02 dB on `creases` (README, "Sparse-view priors").
     pub seen_cells_only: bool,
+    /// The visibility pass ([`visibility`]): the field's density at every marched
+    /// sample, then only the samples a ray can still see reach the full forward.
+    pub visibility: VisibilityConfig,
+}
+
+/// When the visibility pass runs and what it keeps ([`visibility`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VisibilityConfig {
+    /// Run the pass in training steps from `start_step` on.
+    pub train: bool,
+    /// Run the pass when rendering (evaluation, `render`, `export`, the viewer).
+    pub render: bool,
+    /// A ray's walk stops at the first sample whose transmittance is below this
+    /// (nerfacc's `early_stop_eps`). The renderer's `transmittance_threshold` (1e-4)
+    /// makes the pass exact when `min_alpha` is 0.
+    pub min_transmittance: f32,
+    /// Samples whose opacity `1 - exp(-sigma dt)` is below this are dropped (nerfacc's
+    /// `alpha_thre`); 0 keeps them.
+    pub min_alpha: f32,
+    /// First training step with the pass.
+    pub start_step: u32,
+    /// First training step at which `min_alpha` applies (before it, 0). An untrained
+    /// field can be faint everywhere (density about 1 against a short step): dropping
+    /// every sample from the start would leave it no gradient to grow from.
+    pub min_alpha_start_step: u32,
+}
+
+impl Default for VisibilityConfig {
+    fn default() -> Self {
+        Self { train: false, render: false, min_transmittance: 1e-4, min_alpha: 0.0, start_step: 0, min_alpha_start_step: 256 }
+    }
+}
+
+impl VisibilityConfig {
+    /// The rule the pass applies when rendering.
+    pub fn rule(&self) -> Visibility {
+        Visibility { min_transmittance: self.min_transmittance, min_alpha: self.min_alpha }
+    }
+
+    /// The rule the pass applies at training step `step`.
+    pub fn rule_at(&self, step: u64) -> Visibility {
+        let min_alpha = if step >= self.min_alpha_start_step as u64 { self.min_alpha } else { 0.0 };
+        Visibility { min_alpha, ..self.rule() }
+    }
+
+    /// Whether a training step runs the pass.
+    pub fn trains_at(&self, step: u64) -> bool {
+        self.train && step >= self.start_step as u64
+    }
 }
 
 impl Default for SamplerConfig {
@@ -179,6 +235,7 @@ impl Default for SamplerConfig {
             max_samples_per_ray: 1024,
             max_intervals: 16,
             seen_cells_only: false,
+            visibility: VisibilityConfig::default(),
         }
     }
 }
@@ -219,6 +276,12 @@ impl SamplerConfig {
         }
         if self.max_samples_per_ray == 0 {
             return fail("max_samples_per_ray must be at least 1".into());
+        }
+        let v = &self.visibility;
+        for (name, x) in [("min_transmittance", v.min_transmittance), ("min_alpha", v.min_alpha)] {
+            if !(x.is_finite() && (0.0..1.0).contains(&x)) {
+                return fail(format!("visibility.{name} = {x} must lie in [0, 1)"));
+            }
         }
         if self.max_intervals == 0 || self.max_intervals > MAX_INTERVALS_LIMIT {
             return fail(format!("max_intervals {} not in 1..={MAX_INTERVALS_LIMIT}", self.max_intervals));

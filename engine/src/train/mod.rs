@@ -160,9 +160,12 @@ pub struct StepStats {
     pub lambda_normal: f32,
     pub lr: f32,
     pub grad_norm: f32,
-    /// Samples evaluated, and their mean per ray.
+    /// Samples the field ran on, and their mean per ray.
     pub samples: u32,
     pub samples_per_ray: f32,
+    /// Samples the march placed per ray (the occupancy grid's cut), before the
+    /// visibility pass kept `samples_per_ray` of them (equal without the pass).
+    pub marched_samples_per_ray: f32,
     /// Samples the rays wanted beyond the batch capacity (0 when nothing was cut).
     pub samples_truncated: u32,
     /// Fraction of the occupancy grid's cells marked occupied as of this step (1 before
@@ -196,7 +199,7 @@ pub struct StepStats {
 
 impl StepStats {
     /// The stats of step `plan.step`: its losses, learning rate, gradient norm, the
-    /// sampler's `counts` (kept, wanted) over `n_rays` rays, the occupancy grid's
+    /// sampler's `counts` (field samples, wanted, marched) over `n_rays` rays, the occupancy grid's
     /// occupied fraction and the batch's sample capacity.
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -204,7 +207,7 @@ impl StepStats {
         losses: &BatchLosses,
         lr: f32,
         grad_norm: f32,
-        counts: [u32; 2],
+        counts: [u32; 3],
         n_rays: u32,
         occupied_fraction: f32,
         sample_capacity: u32,
@@ -223,7 +226,8 @@ impl StepStats {
             grad_norm,
             samples: counts[0],
             samples_per_ray: counts[0] as f32 / n_rays as f32,
-            samples_truncated: counts[1].saturating_sub(counts[0]),
+            marched_samples_per_ray: counts[2] as f32 / n_rays as f32,
+            samples_truncated: counts[1].saturating_sub(counts[2]),
             occupied_fraction,
             loss_tv: losses.tv,
             lambda_tv: plan.tv.unwrap_or(0.0),
@@ -242,13 +246,13 @@ impl StepStats {
     }
 
     /// Header of the per-step CSV log (`log.csv`), matching [`StepStats::csv_row`].
-    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal,loss_planarity,lambda_planarity,loss_reprojection,lambda_reprojection";
+    pub const CSV_HEADER: &'static str = "step,loss,loss_color,loss_depth,loss_normal,lambda_depth,lambda_normal,psnr,lr,grad_norm,samples,samples_per_ray,samples_truncated,elapsed_s,loss_tv,lambda_tv,rays_dropped,occupied_fraction,sample_capacity,loss_distortion,loss_occlusion,loss_orientation,loss_depth_normal,lambda_depth_normal,loss_planarity,lambda_planarity,loss_reprojection,lambda_reprojection,marched_samples_per_ray";
 
     /// One CSV row, `elapsed_s` since the start of the run inserted where the header
     /// has it (later columns were appended after it, so older logs stay a prefix).
     pub fn csv_row(&self, elapsed_s: f64) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.step,
             self.loss,
             self.loss_color,
@@ -276,7 +280,8 @@ impl StepStats {
             self.loss_planarity,
             self.lambda_planarity,
             self.loss_reprojection,
-            self.lambda_reprojection
+            self.lambda_reprojection,
+            self.marched_samples_per_ray
         )
     }
 }
@@ -635,7 +640,13 @@ impl Trainer {
             tv: config.regnerf.tv_weight_at(step).filter(|_| self.pipeline.tv_rays() > 0),
             jitter: (crate::rng::SplitMix64::mixed(config.train.seed ^ step.rotate_left(17)).next_u32()) | 1,
             orientation: config.priors.orientation > 0.0,
+            visible: config.sampler.visibility.trains_at(step),
         }
+    }
+
+    /// Rays a step renders: photometric, random-pose and planarity-triplet rays.
+    pub fn rays_per_step(&self) -> u32 {
+        self.pipeline.rays_per_batch()
     }
 
     /// Samples a step's batch holds before rays are cut.

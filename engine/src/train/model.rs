@@ -12,7 +12,7 @@ use crate::data::{Camera, Scene};
 use crate::field::{Field, Footprint, GridField, MlpField};
 use crate::gpu::{Encoder, Gpu, GpuBuffer};
 use crate::render::{Background, LearnedBackground, RenderConfig, RenderOutputs, Renderer};
-use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode};
+use crate::sampler::{OccupancyUpdate, March, OccupancyGrid, Sampler, SamplerMode, Visibility, VisibilityPass};
 use crate::layout::{FieldOutputs, GpuRay, GpuSample, RayOutput, SampleBatch, SampleRange};
 
 use super::TrainError;
@@ -67,19 +67,51 @@ impl RenderedView {
 /// Per-batch GPU buffers of one batch size.
 pub(super) struct BatchBuffers {
     pub rays: GpuBuffer<GpuRay>,
+    /// The samples the field and renderer run on: the march's, or those the
+    /// visibility pass kept of them.
     pub batch: SampleBatch,
     pub field_out: FieldOutputs,
     pub render_out: RenderOutputs,
+    /// With the visibility pass: the marched samples, their densities and the pass.
+    pub visibility: Option<VisibilityBuffers>,
+}
+
+/// What the visibility pass needs beside a batch ([`crate::sampler::visibility`]).
+pub(super) struct VisibilityBuffers {
+    pub marched: SampleBatch,
+    pub density: FieldOutputs,
+    pub pass: VisibilityPass,
 }
 
 impl BatchBuffers {
-    pub fn new(gpu: &Gpu, n_rays: u32, capacity: u32) -> Result<Self, TrainError> {
+    /// Buffers for `n_rays` rays and `capacity` samples, with those of the visibility
+    /// pass when `visibility`.
+    pub fn new(gpu: &Gpu, n_rays: u32, capacity: u32, visibility: bool) -> Result<Self, TrainError> {
+        let visibility = if visibility {
+            Some(VisibilityBuffers {
+                marched: SampleBatch::new(gpu, n_rays, capacity)?,
+                density: FieldOutputs::new(gpu, capacity)?,
+                pass: VisibilityPass::new(gpu, n_rays)?,
+            })
+        } else {
+            None
+        };
         Ok(Self {
             rays: GpuBuffer::zeros(gpu, "rays", n_rays as usize)?,
             batch: SampleBatch::new(gpu, n_rays, capacity)?,
             field_out: FieldOutputs::new(gpu, capacity)?,
             render_out: RenderOutputs::new(gpu, n_rays, None)?,
+            visibility,
         })
+    }
+
+    /// The batch the march wrote when the visibility pass `ran` (its ranges are what
+    /// the capacity cut is told from), else the batch itself.
+    pub fn marched(&self, ran: bool) -> &SampleBatch {
+        match &self.visibility {
+            Some(v) if ran => &v.marched,
+            _ => &self.batch,
+        }
     }
 }
 
@@ -308,6 +340,7 @@ impl Model {
     }
 
     /// Samples `bufs.rays[..n]` into `bufs.batch` and runs the field forward.
+    /// Renders with the visibility pass when `sampler.visibility.render`.
     pub(super) fn sample_and_shade(
         &mut self,
         gpu: &Gpu,
@@ -315,25 +348,36 @@ impl Model {
         jitter_seed: Option<u32>,
         normals: bool,
     ) -> Result<(), TrainError> {
-        self.sample(gpu, bufs, jitter_seed)?;
+        let visible = self.config.sampler.visibility.render.then(|| self.config.sampler.visibility.rule());
+        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible))?;
         self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
         Ok(())
     }
 
-    /// Samples `bufs.rays[..n]` into `bufs.batch` (the first half of
-    /// [`Model::sample_and_shade`]).
-    pub(super) fn sample(&mut self, gpu: &Gpu, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
-        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed))
-    }
-
-    /// [`Model::sample`] recorded into `enc` (the caller submits).
-    pub(super) fn record_sample(&mut self, enc: &mut Encoder, bufs: &BatchBuffers, jitter_seed: Option<u32>) -> Result<(), TrainError> {
+    /// Samples `bufs.rays[..n]` into `bufs.batch`, recorded into `enc` (the caller
+    /// submits). With a `visible` rule (and `bufs` made for it) the march writes
+    /// `bufs.visibility`'s batch, the field's densities there decide which samples a
+    /// ray can see, and only those go into `bufs.batch`.
+    pub(super) fn record_sample(
+        &mut self,
+        enc: &mut Encoder,
+        bufs: &BatchBuffers,
+        jitter_seed: Option<u32>,
+        visible: Option<Visibility>,
+    ) -> Result<(), TrainError> {
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
             SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
             SamplerMode::Uniform => March::Uniform,
         };
-        self.sampler.record_sample(enc, march, &bufs.rays, &bufs.batch, jitter_seed)?;
+        match (&bufs.visibility, visible) {
+            (Some(v), Some(rule)) => {
+                self.sampler.record_sample(enc, march, &bufs.rays, &v.marched, jitter_seed)?;
+                self.field.record_sample_density(enc, &v.marched, &v.density)?;
+                v.pass.record(enc, &v.marched, &v.density, &bufs.batch, rule)?;
+            }
+            _ => self.sampler.record_sample(enc, march, &bufs.rays, &bufs.batch, jitter_seed)?,
+        }
         Ok(())
     }
 
@@ -343,7 +387,7 @@ impl Model {
         let capacity = RENDER_CHUNK * self.config.sampler.max_samples_per_ray.min(1024);
         let capacity = capacity.min((gpu.limits().max_storage_buffer_binding_size / 32) as u32);
         if self.render_buffers.is_none() {
-            self.render_buffers = Some(BatchBuffers::new(gpu, RENDER_CHUNK, capacity)?);
+            self.render_buffers = Some(BatchBuffers::new(gpu, RENDER_CHUNK, capacity, self.config.sampler.visibility.render)?);
         }
         let bufs = self.render_buffers.take().unwrap();
         let result = (|| {

@@ -75,6 +75,8 @@ pub struct StepPlan {
     pub jitter: u32,
     /// Whether the orientation prior is on (it penalises the analytic normals).
     pub orientation: bool,
+    /// Whether the sampler's visibility pass runs (`sampler.visibility`).
+    pub visible: bool,
 }
 
 impl StepPlan {
@@ -109,8 +111,10 @@ pub struct BatchLosses {
     pub reprojection: f32,
     /// Photometric rays the sample capacity cut, dropped from the losses.
     pub rays_dropped: u32,
-    /// The sampler's counts: samples kept, and samples the rays wanted.
-    pub samples: [u32; 2],
+    /// The sampler's counts: samples the field ran on, samples the rays wanted (before
+    /// the capacity cut), and samples the march wrote (more than the first when the
+    /// visibility pass dropped some).
+    pub samples: [u32; 3],
     /// The priors' weights the losses entered with.
     pub priors: RayPriors,
 }
@@ -223,7 +227,7 @@ impl Pipeline {
             priors_on: config.priors.active(),
             random_background,
             renderer,
-            bufs: BatchBuffers::new(gpu, n_all, capacity)?,
+            bufs: BatchBuffers::new(gpu, n_all, capacity, config.sampler.visibility.train)?,
             targets: GpuBuffer::zeros(gpu, "targets", n_all as usize)?,
             d_rays: GpuBuffer::zeros(gpu, "d rays", n_all as usize)?,
             field_grads: FieldGrads::new(gpu, capacity)?,
@@ -297,7 +301,8 @@ impl Pipeline {
         profile: &mut Option<StageTimes>,
     ) -> Result<(), TrainError> {
         self.upload(enc.gpu(), scene, model, batch, plan);
-        model.record_sample(enc, &self.bufs, Some(plan.jitter))?;
+        let rule = plan.visible.then(|| model.config.sampler.visibility.rule_at(plan.step));
+        model.record_sample(enc, &self.bufs, Some(plan.jitter), rule)?;
         end_recorded_stage(profile, enc, Stage::Sampler)?;
         model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
         end_recorded_stage(profile, enc, Stage::FieldForward)?;
@@ -326,7 +331,7 @@ impl Pipeline {
         }
         let grown = (wanted as u64 * 5 / 4).next_multiple_of(4096).min(limit as u64) as u32;
         let n_all = self.bufs.batch.n_rays;
-        self.bufs = BatchBuffers::new(gpu, n_all, grown)?;
+        self.bufs = BatchBuffers::new(gpu, n_all, grown, self.bufs.visibility.is_some())?;
         self.field_grads = FieldGrads::new(gpu, grown)?;
         self.live = live_list(gpu, grown)?;
         Ok(Some(grown))
@@ -385,7 +390,7 @@ impl Pipeline {
         // every loss (their weight and their patch's edge weight to 0).
         if let Some(wanted) = model.wanted_counts() {
             let pixels = plan.reg.is_some().then_some(&self.edge_reg.pixel);
-            self.drop_truncated.record(enc, &bufs.batch.ranges, wanted, &self.targets, pixels, n);
+            self.drop_truncated.record(enc, &bufs.marched(plan.visible).ranges, wanted, &self.targets, pixels, n);
         }
         self.renderer.forward(enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
         let rays_out = &bufs.render_out.rays;
@@ -473,6 +478,7 @@ impl Pipeline {
     pub fn add_loss_reads<'a>(&'a self, reads: &mut ReadBatch<'a>, plan: &StepPlan, cut: bool) -> LossReads {
         let t = self.loss_terms(plan);
         let counts = reads.add(&self.bufs.batch.count, 2);
+        let marched = reads.add(&self.bufs.marched(plan.visible).count, 1);
         let dropped = cut.then(|| reads.add(self.drop_truncated.dropped_count(), 1));
         let sq_error = reads.add(t.sq_error.0, t.sq_error.1);
         let reg = t.reg.map(|(buffer, len)| reads.add(buffer, len));
@@ -483,6 +489,7 @@ impl Pipeline {
         let mut add = |term: Option<(&'a GpuBuffer<f32>, usize)>| term.map(|(buffer, len)| reads.add(buffer, len));
         LossReads {
             counts,
+            marched,
             dropped,
             sq_error,
             reg,
@@ -524,7 +531,7 @@ impl Pipeline {
             planarity: sum(&slots.planarity),
             reprojection: sum(&slots.reprojection),
             rays_dropped,
-            samples: [counts[0], counts[1]],
+            samples: [counts[0], counts[1], back.get(&slots.marched)[0]],
             priors,
         }
     }
@@ -545,6 +552,8 @@ struct LossTerms<'a> {
 /// Where a step's losses are in its readback ([`Pipeline::add_loss_reads`]).
 pub struct LossReads {
     counts: ReadSlot<u32>,
+    /// The march's written count (the same as `counts[0]` without the visibility pass).
+    marched: ReadSlot<u32>,
     dropped: Option<ReadSlot<u32>>,
     sq_error: ReadSlot<f32>,
     reg: Option<ReadSlot<[f32; 2]>>,

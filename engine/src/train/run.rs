@@ -128,8 +128,9 @@ pub fn train_run(trainer: &mut Trainer, dir: &Path, observer: &mut dyn RunObserv
                 return Err(TrainError::NonFinite { step: stats.step, what: format!("the gradient's norm ({})", stats.grad_norm) });
             }
             // Rays that all miss the scene's box give 0 samples and gradient 0: a run
-            // that "trained" for its whole length on nothing.
-            if stats.samples > 0 {
+            // that "trained" for its whole length on nothing. (The march's count: the
+            // visibility pass may drop every sample of a faint, untrained field.)
+            if stats.samples > 0 || stats.marched_samples_per_ray > 0.0 {
                 any_samples = true;
             } else if !any_samples {
                 missed += 1;

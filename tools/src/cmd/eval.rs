@@ -153,6 +153,8 @@ pub struct ViewRecord {
     /// Unmasked PSNR / SSIM where the protocol is masked.
     pub full_image: Option<ImageMetrics>,
     pub geometry: Option<GeometryMetrics>,
+    /// Field samples per pixel ray of its render.
+    pub samples_per_ray: f64,
 }
 
 /// What `eval` writes as `metrics.json`.
@@ -172,6 +174,10 @@ pub struct EvalReport {
     /// The exported mesh against the scene's ground-truth mesh (`None` without one,
     /// or with `--no-mesh`).
     pub mesh: Option<MeshMetrics>,
+    /// What rendering the views cost: seconds (all views, without scoring) and field
+    /// samples per pixel ray (their mean).
+    pub render_seconds: f64,
+    pub samples_per_ray: f64,
     pub views: Vec<ViewRecord>,
 }
 
@@ -261,6 +267,7 @@ fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out
         lpips_alex,
         full_image: base.full_image,
         geometry: base.geometry,
+        samples_per_ray: base.samples_per_ray as f64,
     })
 }
 
@@ -283,9 +290,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let bar = ProgressBar::new(views.len() as u64);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} views [{elapsed_precise}] {msg}").unwrap());
     let mut records = Vec::new();
+    let mut render_seconds = 0.0;
     for v in views {
         bar.set_message(run.scene.views[v].name.clone());
+        let start = std::time::Instant::now();
         let r = run.model.render_view(&run.gpu, &run.scene, v)?;
+        render_seconds += start.elapsed().as_secs_f64();
         records.push(evaluate_one(&run.scene, v, &r, &lpips, &out)?);
         bar.inc(1);
     }
@@ -324,6 +334,8 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         notes: lpips.notes,
         metrics,
         mesh,
+        render_seconds,
+        samples_per_ray: records.iter().map(|r| r.samples_per_ray).sum::<f64>() / records.len() as f64,
         views: records,
     };
     print_table(&report);
@@ -374,6 +386,12 @@ fn print_table(report: &EvalReport) {
             .collect();
         println!("{label:<14}{cells}");
     };
+    println!(
+        "rendering: {:.1} s for {} views, {:.1} field samples per ray",
+        report.render_seconds,
+        report.views.len(),
+        report.samples_per_ray
+    );
     println!(
         "{} views of {} ({} split, step {}, protocol {}, {})",
         report.views.len(),

@@ -38,6 +38,14 @@ pub struct Args {
     /// serialize the step): the slowest kernels per step, and all of them in the JSON.
     #[arg(long)]
     kernels: bool,
+    /// The sampler's visibility pass (`sampler.visibility`) in the timed steps: as the
+    /// config has it, off, on, or each case timed without and then with it.
+    #[arg(long, value_parser = ["config", "off", "on", "both"], default_value = "config")]
+    visibility: String,
+    /// With the pass on: drop samples whose opacity is below this
+    /// (`sampler.visibility.min_alpha`; default: the config's).
+    #[arg(long)]
+    min_alpha: Option<f32>,
     /// Directory for speed.json.
     #[arg(long, default_value = "runs/speed")]
     out: PathBuf,
@@ -49,6 +57,8 @@ struct Case {
     scene: PathBuf,
     config: PathBuf,
     views: Option<usize>,
+    /// Whether the visibility pass runs (`None`: as the config says).
+    visibility: Option<bool>,
 }
 
 #[derive(serde::Serialize)]
@@ -67,6 +77,13 @@ struct CaseResult {
     rays_per_step: u32,
     steps: u64,
     steps_per_s: f64,
+    /// Training rays per second of the plain steps (every ray a step renders).
+    rays_per_s: f64,
+    /// Whether the visibility pass ran, and the mean samples per ray of the plain steps:
+    /// those the field ran on and those the march placed.
+    visibility: bool,
+    samples_per_ray: f64,
+    marched_samples_per_ray: f64,
     ms_per_step: f64,
     /// Command buffers submitted per plain step: 1, plus an occupancy grid update's
     /// own every `sampler.update_interval` steps.
@@ -110,25 +127,41 @@ struct Report {
 }
 
 fn cases(args: &Args) -> Vec<Case> {
-    if let (Some(scene), Some(config)) = (&args.scene, &args.config) {
-        return vec![Case { name: "custom".into(), scene: scene.clone(), config: config.clone(), views: args.views }];
-    }
-    let demo = Case {
-        name: "demo".into(),
-        scene: "synthetic-scenes/small/smooth".into(),
-        config: "tools/configs/demo.toml".into(),
-        views: None,
+    let base = if let (Some(scene), Some(config)) = (&args.scene, &args.config) {
+        vec![Case { name: "custom".into(), scene: scene.clone(), config: config.clone(), views: args.views, visibility: None }]
+    } else {
+        let demo = Case {
+            name: "demo".into(),
+            scene: "synthetic-scenes/small/smooth".into(),
+            config: "tools/configs/demo.toml".into(),
+            views: None,
+            visibility: None,
+        };
+        let sparse = Case {
+            name: "sparse-small".into(),
+            scene: "synthetic-scenes/small/creases".into(),
+            config: "tools/configs/sparse-small.toml".into(),
+            views: Some(3),
+            visibility: None,
+        };
+        match args.preset.as_str() {
+            "demo" => vec![demo],
+            "sparse-small" => vec![sparse],
+            _ => vec![demo, sparse],
+        }
     };
-    let sparse = Case {
-        name: "sparse-small".into(),
-        scene: "synthetic-scenes/small/creases".into(),
-        config: "tools/configs/sparse-small.toml".into(),
-        views: Some(3),
+    let with = |c: &Case, on: bool| Case {
+        name: if args.visibility == "both" && on { format!("{} + visibility", c.name) } else { c.name.clone() },
+        scene: c.scene.clone(),
+        config: c.config.clone(),
+        views: c.views,
+        visibility: Some(on),
     };
-    match args.preset.as_str() {
-        "demo" => vec![demo],
-        "sparse-small" => vec![sparse],
-        _ => vec![demo, sparse],
+    match args.visibility.as_str() {
+        "off" => base.iter().map(|c| with(c, false)).collect(),
+        "on" => base.iter().map(|c| with(c, true)).collect(),
+        "both" => base.iter().flat_map(|c| [with(c, false), with(c, true)]).collect(),
+        _ => base,
     }
 }
 
@@ -147,6 +180,14 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     config.reg.start_step = 0;
     config.reg.warmup_steps = 0;
     config.train.level_anneal = None;
+    let visibility = &mut config.sampler.visibility;
+    if let Some(on) = case.visibility {
+        visibility.train = on;
+        visibility.start_step = 0;
+    }
+    if let Some(a) = args.min_alpha {
+        visibility.min_alpha = a;
+    }
     config.resolve();
     let scene = super::train::load_scene(&config)?;
     let mut trainer = Trainer::new(gpu.clone(), scene, config)?;
@@ -159,23 +200,25 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     bar.enable_steady_tick(std::time::Duration::from_secs(1));
     // Steps as a run takes them: each read back while the next one runs, the phase's
     // last one drained (`drain`), so a phase's time covers its steps' GPU work.
-    let step = |trainer: &mut Trainer, phase: &str, drain: bool| -> anyhow::Result<()> {
+    let step = |trainer: &mut Trainer, phase: &str, drain: bool| -> anyhow::Result<Vec<edgenerf::train::StepStats>> {
         let read_back = trainer.step_pipelined(drain).with_context(|| format!("{}: {phase} step", case.name))?;
         // The first step's message stays until that step is read back (its kernels built).
         if !read_back.is_empty() {
             bar.set_message(phase.to_string());
         }
         bar.inc(1);
-        Ok(())
+        Ok(read_back)
     };
     for i in 0..args.warmup {
         step(&mut trainer, "warm-up", i + 1 == args.warmup)?;
     }
     let (start, submitted, driver) = (Instant::now(), gpu.submissions(), gpu.driver_time());
     let bind_groups = gpu.bind_groups_made();
+    let mut plain = Vec::new();
     for i in 0..args.steps {
-        step(&mut trainer, "plain", i + 1 == args.steps)?;
+        plain.extend(step(&mut trainer, "plain", i + 1 == args.steps)?);
     }
+    let mean_of = |f: fn(&edgenerf::train::StepStats) -> f32| plain.iter().map(|s| f(s) as f64).sum::<f64>() / plain.len().max(1) as f64;
     let plain_s = start.elapsed().as_secs_f64();
     let submissions = gpu.submissions() - submitted;
     let driver_end = gpu.driver_time();
@@ -221,6 +264,10 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         rays_per_step: trainer.config().train.rays_per_batch,
         steps: args.steps,
         steps_per_s: args.steps as f64 / plain_s.max(1e-12),
+        rays_per_s: trainer.rays_per_step() as f64 * args.steps as f64 / plain_s.max(1e-12),
+        visibility: trainer.config().sampler.visibility.trains_at(trainer.step_count()),
+        samples_per_ray: mean_of(|s| s.samples_per_ray),
+        marched_samples_per_ray: mean_of(|s| s.marched_samples_per_ray),
         ms_per_step: per_step(1e3 * plain_s),
         submissions_per_step: per_step(submissions as f64),
         submit_ms_per_step: per_step_ms(driver_end.submit - driver.submit),
@@ -251,6 +298,13 @@ fn print_case(r: &CaseResult) {
     println!(
         "  plain: {:.2} steps/s ({:.1} ms/step, {:.2} submissions/step); profiled stage by stage: {:.1} ms/step",
         r.steps_per_s, r.ms_per_step, r.submissions_per_step, r.profiled_ms_per_step
+    );
+    println!(
+        "  training rays/s: {:.0}; samples per ray: {:.1} through the field, {:.1} marched (visibility pass {})",
+        r.rays_per_s,
+        r.samples_per_ray,
+        r.marched_samples_per_ray,
+        if r.visibility { "on" } else { "off" }
     );
     println!(
         "  host per plain step: {:.2} ms submitting, {:.2} ms waiting for the GPU, {:.2} ms its own work; {:.1} bind groups made",

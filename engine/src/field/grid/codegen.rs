@@ -44,6 +44,8 @@ use super::WorkgroupWeights4;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum GridKernel {
     Density,
+    /// Density at a batch's samples (the sampler's visibility pass): Density's code.
+    SampleDensity,
     Forward,
     Backward,
     /// The forward of a training step: also keeps each sample's encoding and normal
@@ -54,7 +56,7 @@ pub(super) enum GridKernel {
 }
 
 impl GridKernel {
-    pub(super) const COUNT: usize = 5;
+    pub(super) const COUNT: usize = 6;
 }
 
 /// The dimensions the generated code is specialized for (vec4 units).
@@ -111,7 +113,7 @@ pub(super) fn source(layout: &GridLayout, kernel: GridKernel) -> String {
     d.weights.shared4 = match kernel {
         // Density queries read only W1 and W2's first row, the block's prefix up to
         // W2's second row (`density_hidden`, `density_h0`).
-        GridKernel::Density => copy.forward.min(d.w2 + d.w4),
+        GridKernel::Density | GridKernel::SampleDensity => copy.forward.min(d.w2 + d.w4),
         GridKernel::Forward | GridKernel::ForwardKeep => copy.forward,
         GridKernel::Backward | GridKernel::BackwardKept => copy.backward,
     };
@@ -123,7 +125,7 @@ pub(super) fn source(layout: &GridLayout, kernel: GridKernel) -> String {
     encode(&mut s, &d);
     density_hidden(&mut s, &d);
     match kernel {
-        GridKernel::Density => density_h0(&mut s, &d),
+        GridKernel::Density | GridKernel::SampleDensity => density_h0(&mut s, &d),
         _ => {
             density_mlp(&mut s, &d);
             color_mlp(&mut s, &d);
@@ -132,7 +134,7 @@ pub(super) fn source(layout: &GridLayout, kernel: GridKernel) -> String {
         }
     }
     match kernel {
-        GridKernel::Density => {}
+        GridKernel::Density | GridKernel::SampleDensity => {}
         GridKernel::Forward | GridKernel::ForwardKeep => keep_encoding(&mut s, &d, kernel == GridKernel::ForwardKeep),
         GridKernel::Backward | GridKernel::BackwardKept => {
             backward_encoding(&mut s, &d, kernel == GridKernel::BackwardKept);
@@ -488,7 +490,7 @@ mod tests {
         let cfg = GridConfig { n_levels: 5, hidden_width: 12, ..GridConfig::default() };
         let layout = GridLayout::new(&cfg).unwrap();
         assert_eq!(layout.mlp_len / 4, 228);
-        for kernel in [GridKernel::Density, GridKernel::Forward, GridKernel::Backward, GridKernel::ForwardKeep, GridKernel::BackwardKept] {
+        for kernel in [GridKernel::Density, GridKernel::SampleDensity, GridKernel::Forward, GridKernel::Backward, GridKernel::ForwardKeep, GridKernel::BackwardKept] {
             let full = source(&layout, kernel);
             // Apart from the workgroup's copy of the weights (one loop, run before any
             // sample's work), no loops in the generated text, and every index into the
@@ -506,7 +508,7 @@ mod tests {
             }
             // Width 12 at 5 levels is 228 weight vec4, all in workgroup memory; density
             // queries copy only W1 and W2's first row (12 x 12 and 12 floats: 39 vec4).
-            let copied = if kernel == GridKernel::Density { 39 } else { 228 };
+            let copied = if matches!(kernel, GridKernel::Density | GridKernel::SampleDensity) { 39 } else { 228 };
             assert!(src.contains(&format!("var<workgroup> wsh: array<vec4<f32>, {copied}>")), "{kernel:?}");
         }
         // Instant-NGP's width 64 (2880 weight vec4): the first 1024 in workgroup memory,

@@ -879,6 +879,9 @@ use Binding::{Params as P, ReadOnly as R, ReadWrite as RW, Uniform as U};
 
 const DENSITY: KernelSpec =
     KernelSpec { file: "field/grid_density.wgsl", entry: "density", bindings: &[P, R, U, R, RW] };
+/// params, table, weights, samples, count, rgb_density (density in w)
+const SAMPLE_DENSITY: KernelSpec =
+    KernelSpec { file: "field/grid_sample_density.wgsl", entry: "sample_density", bindings: &[P, R, U, R, R, RW] };
 const FORWARD: KernelSpec =
     KernelSpec { file: "field/grid_forward.wgsl", entry: "forward", bindings: &[P, R, U, R, R, RW, RW] };
 /// The training step's forward (codegen's `ForwardKeep`): binding 7 is the backward's
@@ -1256,6 +1259,22 @@ impl Field for GridField {
     fn record_forward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)
     -> Result<(), GpuError> {
         self.run_forward(enc, batch, out, normals, false)
+    }
+
+    fn record_sample_density(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs) -> Result<(), GpuError> {
+        let gpu = enc.gpu();
+        let cap = batch.capacity;
+        out.assert_capacity(cap, "sample density: FieldOutputs");
+        let kernel = self.kernel(gpu, &SAMPLE_DENSITY, GridKernel::SampleDensity)?;
+        self.ensure_indirect(gpu, 1);
+        let args = self.indirect.as_ref().expect("made above");
+        let params = enc.params(&self.dispatch_params(cap, 0, 0, cap));
+        enc.copy(&self.mlp.buffer, &self.mlp_uniform, self.layout.mlp_len as u64 * 4);
+        args.record(enc, &batch.count.buffer, cap, cap.max(1), 1)?;
+        let bindings: [&dyn BindResource; 6] =
+            [&params, &self.table.buffer, &self.mlp_uniform, &batch.samples.buffer, &batch.count.buffer, &out.rgb_density.buffer];
+        args.dispatch(enc, &kernel, &bindings, 0);
+        Ok(())
     }
 
     fn record_forward_for_backward(&mut self, enc: &mut Encoder, batch: &SampleBatch, out: &FieldOutputs, normals: bool)

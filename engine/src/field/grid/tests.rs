@@ -589,6 +589,18 @@ fn field_grid_density_queries_match_forward_and_softplus() {
         }
         // No normals requested: the normal buffer is untouched.
         assert!(out.normal.read(&s.gpu).unwrap().iter().all(|v| *v == [0.0; 4]));
+        // The visibility pass's densities at a batch's samples: the forward's, written
+        // only below count[0] (the rest keeps its sentinel).
+        let dens = FieldOutputs::new(&s.gpu, 128).unwrap();
+        dens.rgb_density.write(&s.gpu, &[[-1.0; 4]; 128]);
+        let mut enc = s.gpu.encoder();
+        s.field.record_sample_density(&mut enc, &s.batch, &dens).unwrap();
+        enc.submit();
+        let got = dens.rgb_density.read(&s.gpu).unwrap();
+        for i in 0..n {
+            assert_eq!(got[i][3], f[i], "{act:?}: sample density vs forward density at {i}");
+        }
+        assert!(got[n..].iter().all(|v| *v == [-1.0; 4]), "{act:?}: samples past the count are not written");
         // Softplus end to end through the reference (first and second order).
         if act == DensityActivation::Softplus {
             let m = s.field.reference(&s.gpu).unwrap();
@@ -933,6 +945,7 @@ fn generated_kernels_of_every_preset_validate() {
     assert!(configs.len() >= 5, "the presets were not found in {}", dir.display());
     let kernels = [
         (&DENSITY, codegen::GridKernel::Density),
+        (&SAMPLE_DENSITY, codegen::GridKernel::SampleDensity),
         (&FORWARD, codegen::GridKernel::Forward),
         (&BACKWARD, codegen::GridKernel::Backward),
         (&FORWARD_KEEP, codegen::GridKernel::ForwardKeep),
