@@ -41,6 +41,7 @@
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
 //#include "common/hash.wgsl"
+//#include "common/opacity.wgsl"
 
 struct Params {
     n_rays: u32,
@@ -86,14 +87,6 @@ var<private> params: Params;
 @group(0) @binding(8) var<storage, read_write> grad_rgb_density: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> grad_normal: array<vec4<f32>>;
 
-// 1 - exp(-tau) without the cancellation of small tau: the series to tau^5 (relative
-// error below tau^5 / 720, under 1.4e-8 at 0.1), else the direct form.
-fn alpha_of(tau: f32, trans: f32) -> f32 {
-    if (tau < 0.1) {
-        return tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0 - tau * (1.0 / 120.0)))));
-    }
-    return 1.0 - trans;
-}
 
 fn background_for(ray: u32) -> vec3<f32> {
     switch params.bg_mode {

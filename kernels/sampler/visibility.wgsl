@@ -16,6 +16,7 @@
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
+//#include "common/opacity.wgsl"
 
 struct Params {
     n_rays: u32,
@@ -37,14 +38,6 @@ var<private> params: Params;
 @group(0) @binding(7) var<storage, read_write> samples: array<Sample>;
 @group(0) @binding(8) var<storage, read_write> ranges: array<SampleRange>;
 @group(0) @binding(9) var<storage, read_write> sample_count: array<u32>;
-
-// 1 - exp(-tau) as render/composite.wgsl computes it.
-fn alpha_of(tau: f32, trans: f32) -> f32 {
-    if (tau < 0.1) {
-        return tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0 - tau * (1.0 / 120.0)))));
-    }
-    return 1.0 - trans;
-}
 
 // Walks ray r's marched samples; returns how many are kept and, with `write`, copies
 // them to samples[start ..].
