@@ -208,15 +208,11 @@ impl VisibilityConfig {
         Visibility { min_transmittance: self.min_transmittance, min_alpha: self.min_alpha }
     }
 
-    /// The rule the pass applies at training step `step`.
-    pub fn rule_at(&self, step: u64) -> Visibility {
+    /// The rule the pass applies at training step `step`, `None` when the step runs
+    /// without it.
+    pub fn training_rule_at(&self, step: u64) -> Option<Visibility> {
         let min_alpha = if step >= self.min_alpha_start_step as u64 { self.min_alpha } else { 0.0 };
-        Visibility { min_alpha, ..self.rule() }
-    }
-
-    /// Whether a training step runs the pass.
-    pub fn trains_at(&self, step: u64) -> bool {
-        self.train && step >= self.start_step as u64
+        (self.train && step >= self.start_step as u64).then_some(Visibility { min_alpha, ..self.rule() })
     }
 }
 

@@ -640,7 +640,7 @@ impl Trainer {
             tv: config.regnerf.tv_weight_at(step).filter(|_| self.pipeline.tv_rays() > 0),
             jitter: (crate::rng::SplitMix64::mixed(config.train.seed ^ step.rotate_left(17)).next_u32()) | 1,
             orientation: config.priors.orientation > 0.0,
-            visible: config.sampler.visibility.trains_at(step),
+            visibility: config.sampler.visibility.training_rule_at(step),
         }
     }
 

@@ -72,14 +72,14 @@ pub(super) struct BatchBuffers {
     pub batch: SampleBatch,
     pub field_out: FieldOutputs,
     pub render_out: RenderOutputs,
-    /// With the visibility pass: the marched samples, their densities and the pass.
+    /// With the visibility pass: the marched samples and the pass (their densities go
+    /// into `field_out`, which the forward of the kept samples then overwrites).
     pub visibility: Option<VisibilityBuffers>,
 }
 
 /// What the visibility pass needs beside a batch ([`crate::sampler::visibility`]).
 pub(super) struct VisibilityBuffers {
     pub marched: SampleBatch,
-    pub density: FieldOutputs,
     pub pass: VisibilityPass,
 }
 
@@ -90,7 +90,6 @@ impl BatchBuffers {
         let visibility = if visibility {
             Some(VisibilityBuffers {
                 marched: SampleBatch::new(gpu, n_rays, capacity)?,
-                density: FieldOutputs::new(gpu, capacity)?,
                 pass: VisibilityPass::new(gpu, n_rays)?,
             })
         } else {
@@ -373,8 +372,10 @@ impl Model {
         match (&bufs.visibility, visible) {
             (Some(v), Some(rule)) => {
                 self.sampler.record_sample(enc, march, &bufs.rays, &v.marched, jitter_seed)?;
-                self.field.record_sample_density(enc, &v.marched, &v.density)?;
-                v.pass.record(enc, &v.marched, &v.density, &bufs.batch, rule)?;
+                // The marched samples' densities in `field_out`: the pass reads them
+                // before the forward of the kept samples overwrites the buffer.
+                self.field.record_sample_density(enc, &v.marched, &bufs.field_out)?;
+                v.pass.record(enc, &v.marched, &bufs.field_out, &bufs.batch, rule)?;
             }
             _ => self.sampler.record_sample(enc, march, &bufs.rays, &bufs.batch, jitter_seed)?,
         }

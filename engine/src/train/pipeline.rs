@@ -49,7 +49,7 @@ use crate::optim::Guard;
 use crate::loss::photometric::Recomposite;
 use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
-use crate::sampler::{DropTruncated, LiveCompaction};
+use crate::sampler::{DropTruncated, LiveCompaction, Visibility};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayAux, RayOutput};
 
 use super::TrainError;
@@ -75,8 +75,9 @@ pub struct StepPlan {
     pub jitter: u32,
     /// Whether the orientation prior is on (it penalises the analytic normals).
     pub orientation: bool,
-    /// Whether the sampler's visibility pass runs (`sampler.visibility`).
-    pub visible: bool,
+    /// The sampler's visibility pass at this step (`sampler.visibility`), `None` when
+    /// it does not run.
+    pub visibility: Option<Visibility>,
 }
 
 impl StepPlan {
@@ -301,8 +302,7 @@ impl Pipeline {
         profile: &mut Option<StageTimes>,
     ) -> Result<(), TrainError> {
         self.upload(enc.gpu(), scene, model, batch, plan);
-        let rule = plan.visible.then(|| model.config.sampler.visibility.rule_at(plan.step));
-        model.record_sample(enc, &self.bufs, Some(plan.jitter), rule)?;
+        model.record_sample(enc, &self.bufs, Some(plan.jitter), plan.visibility)?;
         end_recorded_stage(profile, enc, Stage::Sampler)?;
         model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
         end_recorded_stage(profile, enc, Stage::FieldForward)?;
@@ -390,7 +390,7 @@ impl Pipeline {
         // every loss (their weight and their patch's edge weight to 0).
         if let Some(wanted) = model.wanted_counts() {
             let pixels = plan.reg.is_some().then_some(&self.edge_reg.pixel);
-            self.drop_truncated.record(enc, &bufs.marched(plan.visible).ranges, wanted, &self.targets, pixels, n);
+            self.drop_truncated.record(enc, &bufs.marched(plan.visibility.is_some()).ranges, wanted, &self.targets, pixels, n);
         }
         self.renderer.forward(enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
         let rays_out = &bufs.render_out.rays;
@@ -478,7 +478,7 @@ impl Pipeline {
     pub fn add_loss_reads<'a>(&'a self, reads: &mut ReadBatch<'a>, plan: &StepPlan, cut: bool) -> LossReads {
         let t = self.loss_terms(plan);
         let counts = reads.add(&self.bufs.batch.count, 2);
-        let marched = reads.add(&self.bufs.marched(plan.visible).count, 1);
+        let marched = reads.add(&self.bufs.marched(plan.visibility.is_some()).count, 1);
         let dropped = cut.then(|| reads.add(self.drop_truncated.dropped_count(), 1));
         let sq_error = reads.add(t.sq_error.0, t.sq_error.1);
         let reg = t.reg.map(|(buffer, len)| reads.add(buffer, len));

@@ -265,7 +265,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         steps: args.steps,
         steps_per_s: args.steps as f64 / plain_s.max(1e-12),
         rays_per_s: trainer.rays_per_step() as f64 * args.steps as f64 / plain_s.max(1e-12),
-        visibility: trainer.config().sampler.visibility.trains_at(trainer.step_count()),
+        visibility: trainer.config().sampler.visibility.training_rule_at(trainer.step_count()).is_some(),
         samples_per_ray: mean_of(|s| s.samples_per_ray),
         marched_samples_per_ray: mean_of(|s| s.marched_samples_per_ray),
         ms_per_step: per_step(1e3 * plain_s),
