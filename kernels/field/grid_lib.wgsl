@@ -66,8 +66,10 @@ struct GridParams {
     normal_eps: f32,
     // Added to the density MLP's output before the activation (GridConfig::density_bias).
     density_bias: f32,
-    _pad1: u32,
-    _pad2: u32,
+    // Spherical-harmonics terms of the view direction the colour MLP reads, (l + 1)^2
+    // for the highest band l (GridConfig::sh_degree); the later terms are zero.
+    sh_terms: u32,
+    _pad: u32,
     // Backward scratch: vec4 offset of each of the 11 per-sample regions.
     scratch: array<vec4<u32>, 3>,
     levels: array<Level, MAX_LEVELS>,
@@ -211,7 +213,7 @@ fn density_act_d2(h0_raw: f32) -> f32 {
 }
 
 // Real spherical harmonics of degree 4 (16 coefficients, tiny-cuda-nn constants) of the
-// unit direction d, written to x[4..8].
+// unit direction d, written to x[4..8]; the terms from P.sh_terms on are zero.
 fn sh_encode(dir: vec3<f32>, x: ptr<function, Vec64>) {
     let len = length(dir);
     var d = vec3<f32>(0.0, 0.0, 1.0);
@@ -229,6 +231,10 @@ fn sh_encode(dir: vec3<f32>, x: ptr<function, Vec64>) {
         2.8906114426405538 * d.x * d.y * d.z, 0.45704579946446572 * d.y * (1.0 - 5.0 * zz));
     (*x)[7] = vec4<f32>(0.3731763325901154 * d.z * (5.0 * zz - 3.0), 0.45704579946446572 * d.x * (1.0 - 5.0 * zz),
         1.4453057213202769 * d.z * (xx - yy), 0.59004358992664352 * d.x * (3.0 * yy - xx));
+    let first = vec4<u32>(0u, 1u, 2u, 3u);
+    for (var k = 0u; k < 4u; k++) {
+        (*x)[4u + k] = select(vec4<f32>(0.0), (*x)[4u + k], first + 4u * k < vec4<u32>(P.sh_terms));
+    }
 }
 
 fn sigmoid3(o: vec4<f32>) -> vec3<f32> {

@@ -532,6 +532,18 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             c.finest_height
         );
     }
+    let vis = &config.sampler.visibility;
+    if vis.train {
+        let faint = if vis.min_alpha > 0.0 {
+            format!(", and (from step {}) samples with opacity under {}", vis.min_alpha_start_step.max(vis.start_step), vis.min_alpha)
+        } else {
+            String::new()
+        };
+        eprintln!(
+            "visibility pass: from step {}, samples behind the point where a ray's transmittance falls under {}{faint} skip the field's forward and backward (sampler.visibility.train = false for every marched sample)",
+            vis.start_step, vis.min_transmittance
+        );
+    }
 
     let iters = config.train.iters;
     let bar = ProgressBar::new(iters);

@@ -37,7 +37,8 @@
 //! `act` is `trunc_exp` (forward `exp(min(h0, 80))`, derivative `exp(clamp(h0, -15, 15))`
 //! as Instant-NGP) or `softplus`; `density_bias` is a constant of the config (0 by
 //! default). `SH_4` is the real spherical-harmonics basis of
-//! degree 4 (16 terms, tiny-cuda-nn constants) of the unit view direction.
+//! degree 4 (16 terms, tiny-cuda-nn constants) of the unit view direction; the terms above
+//! band [`GridConfig::sh_degree`] are zero (0: a view-independent colour).
 //!
 //! # Analytic normals (no finite differences)
 //! ```text
@@ -498,6 +499,12 @@ pub struct GridConfig {
     /// Instant-NGP start). Negative values start from nearly empty space, which only
     /// the training rays fill in.
     pub density_bias: f32,
+    /// Highest band of the spherical harmonics the colour MLP reads of the view
+    /// direction, 0..=3: band `l` adds `2 l + 1` terms, so 3 (the default) is
+    /// tiny-cuda-nn's "degree 4", 16 terms, and 0 is a view-independent colour (the
+    /// constant term only). The MLP's input keeps its 16 slots; the terms above the band
+    /// are zero.
+    pub sh_degree: u32,
     /// Most samples per backward chunk (bounds the scratch memory: 1104 bytes a sample
     /// at the presets' field, 2000 at the default one). The chunk is also capped by the
     /// adapter's storage-binding limit (128 MiB on lavapipe: about 100 k samples at the
@@ -545,6 +552,7 @@ impl Default for GridConfig {
             normal_max_resolution: 0.0,
             dense_normal_levels: false,
             density_bias: 0.0,
+            sh_degree: 3,
             backward_chunk: 1 << 17,
             keep_encoding: true,
             workgroup_weights: true,
@@ -582,6 +590,9 @@ impl GridConfig {
         }
         if !self.density_bias.is_finite() || self.density_bias.abs() > 20.0 {
             return err(format!("density_bias = {} must be finite and within [-20, 20]", self.density_bias));
+        }
+        if self.sh_degree > 3 {
+            return err(format!("sh_degree = {} must be in 0..=3 (3: 16 spherical-harmonics terms, 0: a view-independent colour)", self.sh_degree));
         }
         if !(self.normal_eps >= 0.0 && self.table_init_range >= 0.0) {
             return err("normal_eps and table_init_range must be >= 0".into());
@@ -817,7 +828,8 @@ struct GridParams {
     chunk_len: u32,
     normal_eps: f32,
     density_bias: f32,
-    _pad: [u32; 2],
+    sh_terms: u32,
+    _pad: u32,
     scratch: [[u32; 4]; 3],
     levels: [GpuLevel; MAX_LEVELS as usize],
     /// `beta_l` of level `4 i + j` at `[i][j]`.
@@ -1093,6 +1105,7 @@ impl GridField {
             normal_eps: self.config.normal_eps as f64,
             normal_weights: self.config.normal_weights().into_iter().map(f64::from).collect(),
             density_bias: self.config.density_bias as f64,
+            sh_degree: self.config.sh_degree,
             table: self.table.read(gpu)?.into_iter().map(f64::from).collect(),
             mlp: self.mlp.read(gpu)?.into_iter().map(f64::from).collect(),
         })
@@ -1138,7 +1151,8 @@ impl GridField {
             chunk_len,
             normal_eps: self.config.normal_eps,
             density_bias: self.config.density_bias,
-            _pad: [0; 2],
+            sh_terms: (self.config.sh_degree + 1).pow(2),
+            _pad: 0,
             scratch,
             levels,
             normal_weights,
@@ -1497,7 +1511,7 @@ mod wgsl_mirrors {
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
         crate::assert_wgsl_mirror!(GpuLevel, "field/grid_lib.wgsl", "Level", [offset, size, res, scale]);
-        crate::assert_wgsl_mirror!(GridParams, "field/grid_lib.wgsl", "GridParams", [aabb_min, n_levels, inv_extent, active_levels, in4, width4, activation, flags, w1, w2, c1, c2, c3, n, chunk_start, chunk_len, normal_eps, density_bias, scratch, levels, normal_weights]);
+        crate::assert_wgsl_mirror!(GridParams, "field/grid_lib.wgsl", "GridParams", [aabb_min, n_levels, inv_extent, active_levels, in4, width4, activation, flags, w1, w2, c1, c2, c3, n, chunk_start, chunk_len, normal_eps, density_bias, sh_terms, scratch, levels, normal_weights]);
         crate::assert_wgsl_mirror!(GpuOuterProduct, "field/grid_outer.wgsl", "OuterProduct", [d_off, d_stride, x_off, x_stride, out4, in4, tiles_i, tiles_o, n_out, mask_d, grad_off, grad_stride, to_m, first_thread]);
         crate::assert_wgsl_mirror!(OuterParams, "field/grid_outer.wgsl", "OuterParams", [chunk_start, chunk_len, spt, capacity, n_products, threads, products]);
         crate::assert_wgsl_mirror!(FinalizeParams, "field/grid_finalize.wgsl", "FinalizeParams", [w1, w2, in4, width]);

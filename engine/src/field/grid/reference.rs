@@ -22,6 +22,8 @@ pub struct GridModel {
     pub normal_weights: Vec<f64>,
     /// Added to the density MLP's output before the activation.
     pub density_bias: f64,
+    /// Highest spherical-harmonics band of the view direction (terms above it are 0).
+    pub sh_degree: u32,
     /// 2 features per entry, entry-major.
     pub table: Vec<f64>,
     /// GPU layout, padding included.
@@ -278,7 +280,8 @@ impl GridModel {
         let (a1, h) = self.density_mlp(&enc.e);
         let sigma = if enc.inside { self.act(h[0]) } else { 0.0 };
         let mut xc = h.clone();
-        xc.extend_from_slice(&sh4(dir));
+        let terms = ((self.sh_degree + 1) * (self.sh_degree + 1)) as usize;
+        xc.extend(sh4(dir).iter().enumerate().map(|(i, v)| if i < terms { *v } else { 0.0 }));
         let (ac1, ac2, o) = self.color_mlp(&xc);
         let rgb = o.map(|v| 1.0 / (1.0 + (-v).exp()));
         let g = self.density_dir(&a1);

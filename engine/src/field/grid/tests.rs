@@ -212,8 +212,32 @@ fn field_grid_encoding_reference_matches_finite_differences() {
 
 #[test]
 fn field_grid_gpu_encoding_and_mlps_match_reference() {
+    forward_matches_reference(&small_config());
+}
+
+/// A lower spherical-harmonics band: the GPU's colour input zeroes the same terms as the
+/// reference's, and with band 0 the colour no longer depends on the view direction.
+#[test]
+fn field_grid_sh_degree_limits_the_view_dependence() {
+    for sh_degree in [0, 1, 2] {
+        forward_matches_reference(&GridConfig { sh_degree, ..small_config() });
+    }
+    let cfg = GridConfig { sh_degree: 0, ..small_config() };
+    let s = setup(&cfg, 8, 128, 11, false);
+    let m = s.field.reference(&s.gpu).unwrap();
+    let x = pos(&s.samples[0]);
+    let a = m.forward(x, [0.0, 0.0, 1.0]).rgb;
+    let b = m.forward(x, [0.6, -0.8, 0.0]).rgb;
+    assert_eq!(a, b, "band 0: a view-independent colour");
+    let full = GridModel { sh_degree: 3, ..m };
+    assert_ne!(full.forward(x, [0.0, 0.0, 1.0]).rgb, full.forward(x, [0.6, -0.8, 0.0]).rgb);
+    assert!(GridConfig { sh_degree: 4, ..small_config() }.validate().is_err());
+    end_to_end(&GridConfig { sh_degree: 1, ..small_config() }, false, 32, 4);
+}
+
+fn forward_matches_reference(cfg: &GridConfig) {
     let n = 96;
-    let mut s = setup(&small_config(), n, 128, 11, false);
+    let mut s = setup(cfg, n, 128, 11, false);
     let m = s.field.reference(&s.gpu).unwrap();
     let out = FieldOutputs::new(&s.gpu, 128).unwrap();
     s.field.forward(&s.gpu, &s.batch, &out, true).unwrap();
