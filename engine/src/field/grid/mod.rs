@@ -1151,7 +1151,7 @@ impl GridField {
             chunk_len,
             normal_eps: self.config.normal_eps,
             density_bias: self.config.density_bias,
-            sh_terms: (self.config.sh_degree + 1).pow(2),
+            sh_terms: reference::sh_terms(self.config.sh_degree),
             _pad: 0,
             scratch,
             levels,

@@ -86,6 +86,11 @@ fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// Terms of the real spherical harmonics up to band `degree` (`(degree + 1)^2`; 16 at 3).
+pub fn sh_terms(degree: u32) -> u32 {
+    (degree + 1) * (degree + 1)
+}
+
 /// Real spherical harmonics of degree 4 (16 terms) of a direction (normalised here).
 /// Constants as printed by tiny-cuda-nn.
 #[allow(clippy::excessive_precision)]
@@ -280,7 +285,7 @@ impl GridModel {
         let (a1, h) = self.density_mlp(&enc.e);
         let sigma = if enc.inside { self.act(h[0]) } else { 0.0 };
         let mut xc = h.clone();
-        let terms = ((self.sh_degree + 1) * (self.sh_degree + 1)) as usize;
+        let terms = sh_terms(self.sh_degree) as usize;
         xc.extend(sh4(dir).iter().enumerate().map(|(i, v)| if i < terms { *v } else { 0.0 }));
         let (ac1, ac2, o) = self.color_mlp(&xc);
         let rgb = o.map(|v| 1.0 / (1.0 + (-v).exp()));
