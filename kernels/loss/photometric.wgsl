@@ -1,9 +1,10 @@
 // Photometric loss L_c (owner: engine/src/loss/photometric.rs): mean squared error
 // over rays and RGB channels, with per-ray weights. Writes dL/d(RayOutput) (colour
-// part, and the opacity penalty's; the other fields zero, so regularizers add onto it) and each ray's weighted
-// squared error for logging. Targets of pixels with alpha are composited here onto the
-// background the renderer put behind the ray (RayAux.background; random backgrounds),
-// replacing the colour the images were composited over when loaded:
+// part, and the opacity priors' on the opacity; the other fields zero, so regularizers
+// add onto it) and each ray's weighted squared error for logging. Targets of pixels
+// with alpha are composited here onto the background the renderer put behind the ray
+// (RayAux.background; random backgrounds), replacing the colour the images were
+// composited over when loaded:
 //   c* = c + (background - loaded_over) (1 - alpha).
 
 //#include "common/dispatch.wgsl"
@@ -20,8 +21,14 @@ struct Params {
     sparsity: f32,
     // The colour the loaded images were composited over.
     loaded_over: vec3<f32>,
-    _pad1: f32,
+    // The opacity entropy's weight / (sum of ray weights): dL/d opacity of a ray adds
+    // this times its weight times ln((1 - o) / o) (priors.opacity_entropy; 0: off).
+    entropy: f32,
 }
+
+// The entropy's gradient is taken at the opacity clamped to [this, 1 - this]: finite at
+// a fully transparent or opaque ray (|ln| <= 9.2).
+const ENTROPY_CLAMP: f32 = 1e-4;
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> rays: array<RayOutput>;
@@ -48,6 +55,10 @@ fn photometric(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     var d: RayOutput;
     d.rgb = 2.0 * params.scale * want.w * diff;
     d.opacity = params.sparsity * want.w;
+    if (params.entropy > 0.0) {
+        let o = clamp(rays[r].opacity, ENTROPY_CLAMP, 1.0 - ENTROPY_CLAMP);
+        d.opacity += params.entropy * want.w * log((1.0 - o) / o);
+    }
     d.normal = vec3<f32>(0.0);
     d.depth = 0.0;
     d_rays[r] = d;

@@ -37,7 +37,25 @@ struct Params {
     recomposite: u32,
     sparsity: f32,
     loaded_over: [f32; 3],
-    _pad1: f32,
+    entropy: f32,
+}
+
+/// The priors on each photometric ray's opacity `o_r`, as weights of batch means over
+/// the rays (weights `w_r`); both 0 by default (off).
+///
+/// - `sparsity`: `L_sp = lambda_sp sum_r w_r o_r / sum_r w_r` (`priors.sparsity`), so
+///   `dL/d o_r = lambda_sp w_r / sum w`.
+/// - `entropy`: the binary entropy `L_H = lambda_H sum_r w_r H(o_r) / sum_r w_r`,
+///   `H(o) = -o ln o - (1 - o) ln(1 - o)` (`priors.opacity_entropy`), so
+///   `dL/d o_r = lambda_H w_r ln((1 - o_r) / o_r) / sum w`, taken at `o_r` clamped to
+///   `[1e-4, 1 - 1e-4]`: each ray is pushed toward fully opaque or fully transparent,
+///   whichever it is nearer.
+///
+/// Their values are not logged.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OpacityPriors {
+    pub sparsity: f32,
+    pub entropy: f32,
 }
 
 /// Targets with alpha to composite onto the rendered backgrounds (module doc).
@@ -73,7 +91,8 @@ impl Photometric {
     /// Records the loss of `rays[..n]` against `targets[..n]` (rgb + weight), writing
     /// `d_rays[..n]` (overwritten). `weight_sum` is the sum of the targets' weights;
     /// `lambda` scales the loss; `recomposite`: targets with alpha onto the rendered
-    /// backgrounds first (module doc).
+    /// backgrounds first (module doc); `opacity`: the priors on each ray's opacity, whose
+    /// gradients join `d_rays[..].opacity`.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -85,7 +104,7 @@ impl Photometric {
         n: u32,
         weight_sum: f32,
         lambda: f32,
-        sparsity: f32,
+        opacity: OpacityPriors,
     ) {
         assert!(rays.len() >= n as usize && targets.len() >= n as usize && d_rays.len() >= n as usize);
         assert!(self.sq_error.len() >= n as usize, "photometric buffer for {} rays, batch of {n}", self.sq_error.len());
@@ -97,9 +116,9 @@ impl Photometric {
             n_rays: n,
             scale,
             recomposite: recomposite.is_some() as u32,
-            sparsity: if weight_sum > 0.0 { sparsity / weight_sum } else { 0.0 },
+            sparsity: if weight_sum > 0.0 { opacity.sparsity / weight_sum } else { 0.0 },
             loaded_over: recomposite.map_or([0.0; 3], |rc| rc.loaded_over),
-            _pad1: 0.0,
+            entropy: if weight_sum > 0.0 { opacity.entropy / weight_sum } else { 0.0 },
         });
         let (aux, alpha) = recomposite.map_or((&self.placeholder_aux, &self.placeholder_alpha), |rc| (rc.aux, rc.alpha));
         enc.dispatch_threads(
@@ -109,9 +128,6 @@ impl Photometric {
         );
     }
 
-    /// With `sparsity = lambda_sp > 0` the launch also writes the gradient of the opacity
-    /// penalty `L_sp = lambda_sp sum_r w_r opacity_r / sum_r w_r` (the `priors.sparsity`
-    /// prior): `dL/d opacity_r = lambda_sp w_r / sum w`. Its value is not logged.
     /// Mean squared error of the last launch over `n` rays with weights summing to
     /// `weight_sum` (waits for the GPU).
     pub fn mse(&self, gpu: &Gpu, n: usize, weight_sum: f32) -> Result<f32, GpuError> {
@@ -129,6 +145,7 @@ impl Photometric {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::ops::Neg;
 
     #[test]
     fn gradient_matches_finite_differences_and_mse_is_the_mean() {
@@ -157,7 +174,7 @@ mod tests {
         let targets_buf = GpuBuffer::from_slice(&gpu, "targets", &targets).unwrap();
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", n as usize).unwrap();
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, 0.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, OpacityPriors::default());
         enc.submit();
         let mse = loss.mse(&gpu, n as usize, weight_sum).unwrap();
         assert!((mse as f64 - loss_of(&rays)).abs() < 1e-6);
@@ -176,12 +193,44 @@ mod tests {
         }
         // The opacity penalty: lambda_sp w_r / sum w on each ray's opacity, nothing else changed.
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, 0.5);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, n, weight_sum, 1.0, OpacityPriors { sparsity: 0.5, entropy: 0.0 });
         enc.submit();
         let with = d.read(&gpu).unwrap();
         for r in 0..n as usize {
             assert!((with[r].opacity - 0.5 * targets[r][3] / weight_sum).abs() < 1e-7, "ray {r}: {}", with[r].opacity);
             assert_eq!(with[r].rgb, grads[r].rgb);
+        }
+        // The opacity entropy against finite differences of L_H = lambda sum w H(o) / sum w,
+        // at opacities from near 0 to near 1 (and one beyond the clamp).
+        let opacities = [0.02f32, 0.3, 0.5, 0.71, 0.97, 1.0];
+        let mut rays_o = rays.clone();
+        for (r, ray) in rays_o.iter_mut().enumerate() {
+            ray.opacity = opacities[r % opacities.len()];
+        }
+        let lambda_h = 0.2f64;
+        let entropy_of = |o: f64| -o * o.ln() - (1.0 - o) * (1.0 - o).ln();
+        let loss_h = |r: usize, o: f64| lambda_h * targets[r][3] as f64 * entropy_of(o) / weight_sum as f64;
+        let rays_o_buf = GpuBuffer::from_slice(&gpu, "rays with opacity", &rays_o).unwrap();
+        let mut enc = gpu.encoder();
+        let priors = OpacityPriors { sparsity: 0.5, entropy: lambda_h as f32 };
+        loss.record(&mut enc, &rays_o_buf, &targets_buf, None, &d, n, weight_sum, 1.0, priors);
+        enc.submit();
+        let with = d.read(&gpu).unwrap();
+        for r in 0..n as usize {
+            let o = rays_o[r].opacity as f64;
+            let h = 1e-4;
+            let d_entropy = if o >= 1.0 {
+                // Beyond the clamp: the gradient at 1 - 1e-4 (pushing further toward opaque).
+                lambda_h * targets[r][3] as f64 * (1e-4f64 / (1.0 - 1e-4)).ln() / weight_sum as f64
+            } else {
+                (loss_h(r, o + h) - loss_h(r, o - h)) / (2.0 * h)
+            };
+            let want = 0.5 * targets[r][3] as f64 / weight_sum as f64 + d_entropy;
+            assert!((with[r].opacity as f64 - want).abs() < 1e-5 * (1.0 + want.abs()), "ray {r} at opacity {o}: {} vs {want}", with[r].opacity);
+            if targets[r][3] > 0.0 {
+                // Toward the nearer of 0 and 1: descent lowers an opacity under 1/2, raises one over.
+                assert!(o == 0.5 || (with[r].opacity as f64 - 0.5 * targets[r][3] as f64 / weight_sum as f64).signum() == (o - 0.5).signum().neg(), "ray {r}");
+            }
         }
     }
 
@@ -210,7 +259,7 @@ mod tests {
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", 4).unwrap();
         let rc = Recomposite { aux: &aux_buf, alpha: &alpha_buf, loaded_over };
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&rc), &d, 4, 4.0, 1.0, 0.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&rc), &d, 4, 4.0, 1.0, OpacityPriors::default());
         enc.submit();
         let grads = d.read(&gpu).unwrap();
         let mut sq = 0.0f64;
@@ -226,7 +275,7 @@ mod tests {
         assert!((mse as f64 - sq / 12.0).abs() < 1e-6, "{mse} vs {}", sq / 12.0);
         // Without recompositing the same call scores the targets as given.
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, 4, 4.0, 1.0, 0.0);
+        loss.record(&mut enc, &rays_buf, &targets_buf, None, &d, 4, 4.0, 1.0, OpacityPriors::default());
         enc.submit();
         assert!((d.read(&gpu).unwrap()[0].rgb[0] - 2.0 * (rays[0].rgb[0] - 0.8) / 12.0).abs() < 1e-6);
     }
@@ -239,6 +288,6 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "loss/photometric.wgsl", "Params", [n_rays, scale, recomposite, sparsity, loaded_over]);
+        crate::assert_wgsl_mirror!(Params, "loss/photometric.wgsl", "Params", [n_rays, scale, recomposite, sparsity, loaded_over, entropy]);
     }
 }

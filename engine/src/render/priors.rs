@@ -75,11 +75,21 @@ pub struct PriorConfig {
     /// the object; later it would only erode the object's own opacity (a white
     /// backdrop then shows through it).
     pub sparsity_steps: u64,
+    /// Weight of the opacity entropy `L_H = mean_r H(opacity_r)` over the photometric
+    /// rays, `H(o) = -o ln o - (1 - o) ln(1 - o)` (0: off): each ray is pushed toward
+    /// fully opaque or fully transparent, whichever it is nearer, so an object is not
+    /// left half transparent with a learned background showing through it. Applied
+    /// through the photometric loss's `dL/d opacity` (`loss::photometric`) from
+    /// `opacity_entropy_start` on; its value is not logged.
+    pub opacity_entropy: f32,
+    /// The first step of the opacity entropy: before it the field is still fog, which the
+    /// entropy would make opaque.
+    pub opacity_entropy_start: u64,
 }
 
 impl Default for PriorConfig {
     fn default() -> Self {
-        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0, sparsity_steps: 0 }
+        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0, sparsity_steps: 0, opacity_entropy: 0.0, opacity_entropy_start: 0 }
     }
 }
 
@@ -90,6 +100,7 @@ impl PriorConfig {
             ("priors.occlusion", self.occlusion),
             ("priors.orientation", self.orientation),
             ("priors.sparsity", self.sparsity),
+            ("priors.opacity_entropy", self.opacity_entropy),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
@@ -107,6 +118,15 @@ impl PriorConfig {
         match self.sparsity_steps {
             0 => self.sparsity,
             n => self.sparsity * (1.0 - step as f32 / n as f32).max(0.0),
+        }
+    }
+
+    /// The priors on each photometric ray's opacity at `step` (the opacity penalty and
+    /// the opacity entropy).
+    pub fn opacity_at(&self, step: u64) -> crate::loss::photometric::OpacityPriors {
+        crate::loss::photometric::OpacityPriors {
+            sparsity: self.sparsity_at(step),
+            entropy: if step >= self.opacity_entropy_start { self.opacity_entropy } else { 0.0 },
         }
     }
 
@@ -214,5 +234,9 @@ mod tests {
         let falling = PriorConfig { sparsity: 0.04, sparsity_steps: 400, ..Default::default() };
         assert_eq!([falling.sparsity_at(0), falling.sparsity_at(100), falling.sparsity_at(400), falling.sparsity_at(900)], [0.04, 0.03, 0.0, 0.0]);
         assert!(PriorConfig { sparsity: -1.0, ..Default::default() }.validate().is_err());
+        let entropy = PriorConfig { opacity_entropy: 0.01, opacity_entropy_start: 300, ..falling };
+        assert_eq!([entropy.opacity_at(299).entropy, entropy.opacity_at(300).entropy], [0.0, 0.01]);
+        assert_eq!(entropy.opacity_at(100).sparsity, 0.03);
+        assert!(PriorConfig { opacity_entropy: f32::NAN, ..Default::default() }.validate().is_err());
     }
 }

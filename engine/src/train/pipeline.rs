@@ -399,8 +399,8 @@ impl Pipeline {
             alpha,
             loaded_over: *loaded_over,
         });
-        let sparsity = model.config.priors.sparsity_at(plan.step);
-        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, sparsity);
+        let opacity = model.config.priors.opacity_at(plan.step);
+        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
