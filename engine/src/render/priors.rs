@@ -121,13 +121,9 @@ impl PriorConfig {
         }
     }
 
-    /// The priors on each photometric ray's opacity at `step` (the opacity penalty and
-    /// the opacity entropy).
-    pub fn opacity_at(&self, step: u64) -> crate::loss::photometric::OpacityPriors {
-        crate::loss::photometric::OpacityPriors {
-            sparsity: self.sparsity_at(step),
-            entropy: if step >= self.opacity_entropy_start { self.opacity_entropy } else { 0.0 },
-        }
+    /// The opacity entropy's weight at `step` (see [`PriorConfig::opacity_entropy_start`]).
+    pub fn opacity_entropy_at(&self, step: u64) -> f32 {
+        if step >= self.opacity_entropy_start { self.opacity_entropy } else { 0.0 }
     }
 
     /// Whether any term is on.
@@ -235,8 +231,8 @@ mod tests {
         assert_eq!([falling.sparsity_at(0), falling.sparsity_at(100), falling.sparsity_at(400), falling.sparsity_at(900)], [0.04, 0.03, 0.0, 0.0]);
         assert!(PriorConfig { sparsity: -1.0, ..Default::default() }.validate().is_err());
         let entropy = PriorConfig { opacity_entropy: 0.01, opacity_entropy_start: 300, ..falling };
-        assert_eq!([entropy.opacity_at(299).entropy, entropy.opacity_at(300).entropy], [0.0, 0.01]);
-        assert_eq!(entropy.opacity_at(100).sparsity, 0.03);
+        assert_eq!([entropy.opacity_entropy_at(299), entropy.opacity_entropy_at(300)], [0.0, 0.01]);
+        assert_eq!(entropy.sparsity_at(100), 0.03);
         assert!(PriorConfig { opacity_entropy: f32::NAN, ..Default::default() }.validate().is_err());
     }
 }

@@ -46,7 +46,7 @@
 use crate::data::Scene;
 use crate::gpu::{Encoder, Gpu, GpuBuffer, ReadBack, ReadBatch, ReadSlot};
 use crate::optim::Guard;
-use crate::loss::photometric::Recomposite;
+use crate::loss::photometric::{OpacityPriors, Recomposite};
 use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction, Visibility};
@@ -399,7 +399,8 @@ impl Pipeline {
             alpha,
             loaded_over: *loaded_over,
         });
-        let opacity = model.config.priors.opacity_at(plan.step);
+        let priors = &model.config.priors;
+        let opacity = OpacityPriors { sparsity: priors.sparsity_at(plan.step), entropy: priors.opacity_entropy_at(plan.step) };
         self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
