@@ -145,7 +145,6 @@ impl Photometric {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::ops::Neg;
 
     #[test]
     fn gradient_matches_finite_differences_and_mse_is_the_mean() {
@@ -229,7 +228,8 @@ mod tests {
             assert!((with[r].opacity as f64 - want).abs() < 1e-5 * (1.0 + want.abs()), "ray {r} at opacity {o}: {} vs {want}", with[r].opacity);
             if targets[r][3] > 0.0 {
                 // Toward the nearer of 0 and 1: descent lowers an opacity under 1/2, raises one over.
-                assert!(o == 0.5 || (with[r].opacity as f64 - 0.5 * targets[r][3] as f64 / weight_sum as f64).signum() == (o - 0.5).signum().neg(), "ray {r}");
+                let d_entropy_gpu = with[r].opacity as f64 - 0.5 * targets[r][3] as f64 / weight_sum as f64;
+                assert!(o == 0.5 || d_entropy_gpu.signum() == -(o - 0.5).signum(), "ray {r}: {d_entropy_gpu} at opacity {o}");
             }
         }
     }
