@@ -7,6 +7,8 @@
 //!   with the distortion models written here independently land on pixels whose loaded
 //!   rays pass through the points.
 //! * A forward-facing COLMAP capture is the LLFF scene of the same cameras and bounds.
+//! * `box_scale` widens a world-space scene's box about its centre and moves `far` to its
+//!   far corners; an NDC scene refuses it.
 //! * Bad inputs: a missing `cameras.bin`, an unknown or unsupported camera model, a
 //!   truncated binary file, an ambiguous folder.
 
@@ -418,6 +420,49 @@ fn forward_facing_colmap_is_the_llff_scene() {
             assert!((ra.origin - rb.origin).abs().max_element() < 1e-4 && (ra.dir - rb.dir).abs().max_element() < 1e-4, "{ra:?} {rb:?}");
         }
     }
+}
+
+// ------------------------------------------------------------------ box scale
+
+/// `box_scale` scales the box about its centre and moves `far` out until every camera
+/// reaches the far corner of the larger box; cameras and rays are unchanged. An NDC
+/// scene (forward-facing LLFF) refuses any scale but 1 with a message naming the key.
+#[test]
+fn box_scale_widens_the_box_and_far_reaches_it() {
+    let plain = Scene::load(creases(), &headers_only()).unwrap();
+    let wide = Scene::load(creases(), &LoadOptions { box_scale: 2.5, ..headers_only() }).unwrap();
+    let [lo, hi] = plain.aabb;
+    let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+    for (got, want) in wide.aabb.iter().zip([centre - 2.5 * half, centre + 2.5 * half]) {
+        assert!((*got - want).abs().max_element() < 1e-5, "{:?} vs {want}", wide.aabb);
+    }
+    assert_eq!(wide.near, plain.near);
+    let far_corner = |o: Vec3| {
+        let pick = |axis: usize| if (o[axis] - wide.aabb[0][axis]).abs() > (o[axis] - wide.aabb[1][axis]).abs() { wide.aabb[0][axis] } else { wide.aabb[1][axis] };
+        o.distance(Vec3::new(pick(0), pick(1), pick(2)))
+    };
+    let reach = wide.views.iter().map(|v| far_corner(v.camera.origin())).fold(0.0f32, f32::max);
+    assert!(wide.far >= reach - 1e-4 && wide.far >= plain.far, "far {} (plain {}), farthest corner {reach}", wide.far, plain.far);
+    assert!(reach > plain.far, "the test needs a box that reaches past the plain far ({reach} vs {})", plain.far);
+    for v in 0..plain.views.len() {
+        assert_eq!(plain.image_rays(v), wide.image_rays(v));
+    }
+    // A scale below 1 narrows the box and keeps far.
+    let narrow = Scene::load(creases(), &LoadOptions { box_scale: 0.5, ..headers_only() }).unwrap();
+    assert!(((narrow.aabb[1] - narrow.aabb[0]) - (hi - lo) * 0.5).abs().max_element() < 1e-5);
+    assert_eq!(narrow.far, plain.far);
+
+    let llff = tempfile::tempdir().unwrap();
+    let mut rows = Vec::new();
+    for i in 0..3 {
+        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 6.0, 0.0, 1.0, 0.0, 0.0, 8.0, 0.0, 0.0, 1.0, 0.0, 10.0, 2.0, 20.0]);
+        write_png(&llff.path().join(format!("images/img{i}.png")), 8, 6);
+    }
+    write_npy_f64(&llff.path().join("poses_bounds.npy"), &[3, 17], &rows).unwrap();
+    let opts = LoadOptions { llff_factor: Some(1), ..headers_only() };
+    assert!(Scene::load(llff.path(), &opts).unwrap().ndc.is_some());
+    let err = Scene::load(llff.path(), &LoadOptions { box_scale: 2.0, ..opts }).expect_err("NDC refuses a box scale").to_string();
+    assert!(err.contains("box_scale") && err.contains("NDC"), "{err}");
 }
 
 // --------------------------------------------------------- downsampling on load

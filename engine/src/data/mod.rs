@@ -126,11 +126,13 @@ pub struct LoadOptions {
     pub llff_factor: Option<u32>,
     /// Load the image pixels. `false` reads only cameras and sizes (fast `info`).
     pub load_images: bool,
+    /// Scale of the format's scene box about its centre ([`Scene::scale_box`]); 1 keeps it.
+    pub box_scale: f32,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true }
+        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true, box_scale: 1.0 }
     }
 }
 
@@ -183,13 +185,50 @@ impl Scene {
     /// Detects the format of `root` and loads it.
     pub fn load(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene, DataError> {
         let root = root.as_ref();
-        match detect_format(root)? {
+        let mut scene = match detect_format(root)? {
             SceneFormat::Blender => blender::load(root, opts),
             SceneFormat::Llff => llff::load(root, opts),
             f @ (SceneFormat::DtuIdr | SceneFormat::DtuPixelNerf) => dtu::load(root, f, opts),
             SceneFormat::Nerfstudio => nerfstudio::load(root, opts),
             SceneFormat::Colmap => colmap::load(root, opts),
+        }?;
+        if opts.box_scale != 1.0 {
+            scene.scale_box(opts.box_scale)?;
         }
+        Ok(scene)
+    }
+
+    /// Scales the scene box by `scale` about its centre, and moves `far` out so that
+    /// every camera's rays reach the far side of the larger box. Refused for NDC scenes,
+    /// whose box is the NDC cube (every forward-facing ray already ends at infinity).
+    pub fn scale_box(&mut self, scale: f32) -> Result<(), DataError> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(DataError::invalid(&self.root, format!("box scale {scale}: must be a positive number")));
+        }
+        if self.ndc.is_some() {
+            return Err(DataError::invalid(
+                &self.root,
+                format!(
+                    "box scale {scale}: this forward-facing scene's rays are in NDC, whose box already reaches \
+                     infinity; leave scene.box_scale at 1"
+                ),
+            ));
+        }
+        let [lo, hi] = self.aabb;
+        let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5 * scale);
+        self.aabb = [centre - half, centre + half];
+        let corners = (0..8).map(|i| {
+            let pick = |bit: usize, axis: usize| if i >> bit & 1 == 1 { self.aabb[1][axis] } else { self.aabb[0][axis] };
+            glam::Vec3::new(pick(0, 0), pick(1, 1), pick(2, 2))
+        });
+        let corners: Vec<_> = corners.collect();
+        let reach = self
+            .views
+            .iter()
+            .flat_map(|v| corners.iter().map(move |c| v.camera.origin().distance(*c)))
+            .fold(0.0f32, f32::max);
+        self.far = self.far.max(reach);
+        Ok(())
     }
 
     /// Image size shared by every view.

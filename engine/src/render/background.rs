@@ -50,11 +50,17 @@ pub struct LearnedBackgroundConfig {
     /// The background every direction starts at, in `(0, 1)`, where no
     /// [`LearnedBackground::prefit`] runs (renders of a map that was never trained).
     pub init: f32,
+    /// Where the map lies: 0 (the default) at infinity, read by the ray's direction;
+    /// `r > 1`: on a sphere about the box's centre of radius `r` times the box's half
+    /// diagonal, read by the direction from the centre to where the ray leaves that
+    /// sphere ([`LearnedBackground::lookup_dir`]): a backdrop at a finite distance, with
+    /// parallax between views (NeRF++'s outer sphere, as one textured shell).
+    pub shell_radius: f32,
 }
 
 impl Default for LearnedBackgroundConfig {
     fn default() -> Self {
-        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5 }
+        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5, shell_radius: 0.0 }
     }
 }
 
@@ -72,6 +78,12 @@ impl LearnedBackgroundConfig {
         }
         if !(self.lr_scale.is_finite() && self.lr_scale >= 0.0) {
             return Err(format!("render.learned_background.lr_scale = {} must be finite and >= 0", self.lr_scale));
+        }
+        if !(self.shell_radius == 0.0 || (self.shell_radius > 1.0 && self.shell_radius <= 1000.0)) {
+            return Err(format!(
+                "render.learned_background.shell_radius = {}: 0 (at infinity) or above 1 (outside the box), at most 1000",
+                self.shell_radius
+            ));
         }
         if !(self.init > 0.0 && self.init < 1.0) {
             return Err(format!("render.learned_background.init = {} must lie in (0, 1)", self.init));
@@ -105,6 +117,8 @@ const ADAM_T: &str = "background.adam_t";
 #[derive(Clone, Debug)]
 pub struct LearnedBackground {
     config: LearnedBackgroundConfig,
+    /// The shell's centre and radius in the field's space (`config.shell_radius` > 0).
+    shell: Option<([f32; 3], f32)>,
     /// Per map: offset of its first texel (RGB triples) in `logits`, height, width.
     maps: Vec<(usize, usize, usize)>,
     /// Pre-sigmoid values, 3 per texel, the maps one after the other (row-major, `v`
@@ -142,9 +156,9 @@ fn sigmoid(x: f32) -> f32 {
 }
 
 impl LearnedBackground {
-    /// A map at its initial colour (`config.init` everywhere). Call
-    /// [`LearnedBackgroundConfig::validate`] first.
-    pub fn new(config: LearnedBackgroundConfig) -> Self {
+    /// A map at its initial colour (`config.init` everywhere) for a scene box `aabb` (the
+    /// shell's centre and size). Call [`LearnedBackgroundConfig::validate`] first.
+    pub fn new(config: LearnedBackgroundConfig, aabb: [[f32; 3]; 2]) -> Self {
         let mut maps = Vec::new();
         let mut n = 0;
         for (h, w) in config.sizes() {
@@ -156,7 +170,33 @@ impl LearnedBackground {
         let mut logits = vec![0.0; 3 * n];
         let (_, h0, w0) = maps[0];
         logits[..3 * h0 * w0].fill(init);
-        Self { config, maps, logits, m: vec![0.0; 3 * n], v: vec![0.0; 3 * n], t: 0 }
+        let shell = (config.shell_radius > 0.0).then(|| {
+            let [lo, hi] = aabb;
+            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+            let half_diagonal = [0, 1, 2].map(|k| 0.5 * (hi[k] - lo[k])).iter().map(|x| x * x).sum::<f32>().sqrt();
+            (centre, config.shell_radius * half_diagonal)
+        });
+        Self { config, shell, maps, logits, m: vec![0.0; 3 * n], v: vec![0.0; 3 * n], t: 0 }
+    }
+
+    /// The direction the map is read in for the ray `origin + t dir`: `dir` for a map
+    /// at infinity; for a shell, the direction from its centre to the point where the
+    /// ray leaves the sphere (the larger root of `|o + t d - c| = R`), or `dir` for a ray
+    /// that misses it (an origin outside the shell, looking away).
+    pub fn lookup_dir(&self, origin: [f32; 3], dir: [f32; 3]) -> [f32; 3] {
+        let Some((c, r)) = self.shell else { return dir };
+        let o = [0, 1, 2].map(|k| origin[k] - c[k]);
+        let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let (a, b, cc) = (dot(dir, dir), dot(o, dir), dot(o, o) - r * r);
+        let disc = b * b - a * cc;
+        if !(a > 0.0 && disc >= 0.0) {
+            return dir;
+        }
+        let t = (-b + disc.sqrt()) / a;
+        if t <= 0.0 {
+            return dir;
+        }
+        [0, 1, 2].map(|k| o[k] + t * dir[k])
     }
 
     pub fn config(&self) -> &LearnedBackgroundConfig {
@@ -296,8 +336,35 @@ impl LearnedBackground {
 mod tests {
     use super::*;
 
+    const UNIT_BOX: [[f32; 3]; 2] = [[-1.0; 3], [1.0; 3]];
+
+    /// A map at infinity is read by the ray's direction; a shell by the direction from
+    /// its centre to the exit point, which lies on the sphere and along the ray.
+    #[test]
+    fn shell_lookup_is_where_the_ray_leaves_the_sphere() {
+        let at_infinity = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
+        assert_eq!(at_infinity.lookup_dir([0.5, 2.0, -1.0], [0.3, -0.2, 0.9]), [0.3, -0.2, 0.9]);
+        let aabb = [[1.0, 0.0, -2.0], [3.0, 4.0, 2.0]];
+        let shell = LearnedBackground::new(LearnedBackgroundConfig { shell_radius: 2.0, ..Default::default() }, aabb);
+        let (c, r) = ([2.0f32, 2.0, 0.0], 2.0 * 3.0); // half diagonal |(1, 2, 2)| = 3
+        let norm = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        for (o, d) in [([2.0, 2.0, 0.0], [0.0, 0.0, 2.0]), ([1.5, 3.0, -1.0], [0.3, -0.2, 0.9]), ([6.0, 2.0, 0.0], [-1.0, 0.1, 0.0])] {
+            let p = shell.lookup_dir(o, d);
+            assert!((norm(p) - r).abs() < 1e-4, "{p:?} is not on the sphere");
+            // p + c - o is parallel to d and ahead of the origin.
+            let q = [0, 1, 2].map(|k| p[k] + c[k] - o[k]);
+            let cross = [q[1] * d[2] - q[2] * d[1], q[2] * d[0] - q[0] * d[2], q[0] * d[1] - q[1] * d[0]];
+            assert!(norm(cross) < 1e-4 * norm(q) * norm(d) && q.iter().zip(&d).map(|(a, b)| a * b).sum::<f32>() > 0.0, "{p:?}");
+        }
+        // From the centre the exit point is along the direction itself.
+        let p = shell.lookup_dir(c, [0.0, 3.0, 4.0]);
+        assert!((p[1] / p[2] - 0.75).abs() < 1e-5 && p[0].abs() < 1e-5);
+        // Outside the shell and looking away: the ray's direction.
+        assert_eq!(shell.lookup_dir([20.0, 2.0, 0.0], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0]);
+    }
+
     fn trained_map() -> LearnedBackground {
-        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 2, finest_height: 8, ..Default::default() });
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 2, finest_height: 8, ..Default::default() }, UNIT_BOX);
         // Non-trivial values everywhere.
         for (i, x) in bg.logits.iter_mut().enumerate() {
             *x = ((i * 7919) % 23) as f32 / 23.0 - 0.5;
@@ -311,7 +378,7 @@ mod tests {
 
     #[test]
     fn starts_at_its_initial_colour_everywhere() {
-        let bg = LearnedBackground::new(LearnedBackgroundConfig { init: 0.8, ..Default::default() });
+        let bg = LearnedBackground::new(LearnedBackgroundConfig { init: 0.8, ..Default::default() }, UNIT_BOX);
         for c in bg.colors(&dirs()) {
             for x in c {
                 assert!((x - 0.8).abs() < 1e-5, "{x}");
@@ -343,7 +410,7 @@ mod tests {
 
     #[test]
     fn training_moves_the_seen_directions_to_the_target() {
-        let mut bg = LearnedBackground::new(LearnedBackgroundConfig::default());
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         let d = dirs();
         let target = [1.0, 1.0, 1.0];
         for _ in 0..300 {
@@ -356,14 +423,14 @@ mod tests {
             assert!(c.iter().all(|&x| x > 0.95), "{c:?}");
         }
         // An opaque ray teaches the background nothing.
-        let mut opaque = LearnedBackground::new(LearnedBackgroundConfig::default());
+        let mut opaque = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         opaque.step(&d, &vec![[1.0; 3]; d.len()], &vec![1.0; d.len()], 0.05);
         assert!(opaque.colors(&d).iter().all(|c| c.iter().all(|&x| (x - 0.5).abs() < 1e-6)));
     }
 
     #[test]
     fn prefit_takes_the_median_and_shapes_it_by_direction() {
-        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 1, finest_height: 4, ..Default::default() });
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels: 1, finest_height: 4, ..Default::default() }, UNIT_BOX);
         // Upward directions see black, downward ones white, and one odd colour.
         let mut dirs = Vec::new();
         let mut colors = Vec::new();
@@ -388,11 +455,11 @@ mod tests {
     fn export_and_import_round_trip() {
         let mut bg = trained_map();
         bg.step(&dirs(), &vec![[0.1, -0.2, 0.3]; 5], &vec![0.2; 5], 0.01);
-        let mut restored = LearnedBackground::new(*bg.config());
+        let mut restored = LearnedBackground::new(*bg.config(), UNIT_BOX);
         restored.import(&bg.export()).unwrap();
         assert_eq!(restored.colors(&dirs()), bg.colors(&dirs()));
         assert_eq!((restored.m.clone(), restored.v.clone(), restored.t), (bg.m.clone(), bg.v.clone(), bg.t));
-        let mut other = LearnedBackground::new(LearnedBackgroundConfig::default());
+        let mut other = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         assert!(other.import(&bg.export()).unwrap_err().contains("background.logits"));
     }
 }

@@ -168,6 +168,12 @@ pub struct SamplerConfig {
     /// grey fog, which measured -0.3 dB on `occlusion` (3 views), +0.05 dB on `room`,
     /// +0.02 dB on `creases` (README, "Sparse-view priors").
     pub seen_cells_only: bool,
+    /// With `seen_cells_only`: how many training cameras must image a cell for it to
+    /// count as seen (1: any camera, Instant-NGP's rule). Above 1, space that only one
+    /// camera sees, where nothing but that one photograph constrains the density (fog
+    /// in front of a camera that explains its image and veils the object from every
+    /// other view), is never marched. Uses the cameras only, never masks.
+    pub seen_views: u32,
     /// The visibility pass ([`visibility`]): the field's density at every marched
     /// sample, then only the samples a ray can still see reach the full forward.
     pub visibility: VisibilityConfig,
@@ -231,6 +237,7 @@ impl Default for SamplerConfig {
             max_samples_per_ray: 1024,
             max_intervals: 16,
             seen_cells_only: false,
+            seen_views: 1,
             visibility: VisibilityConfig::default(),
         }
     }
@@ -272,6 +279,12 @@ impl SamplerConfig {
         }
         if self.max_samples_per_ray == 0 {
             return fail("max_samples_per_ray must be at least 1".into());
+        }
+        if self.seen_views == 0 {
+            return fail("seen_views must be at least 1".into());
+        }
+        if self.seen_views > 1 && !self.seen_cells_only {
+            return fail(format!("seen_views = {} applies to seen cells only: set sampler.seen_cells_only = true", self.seen_views));
         }
         let v = &self.visibility;
         for (name, x) in [("min_transmittance", v.min_transmittance), ("min_alpha", v.min_alpha)] {

@@ -341,6 +341,12 @@ impl OccupancyGrid {
         Ok(kept)
     }
 
+    /// How many cells the seen mask keeps ([`OccupancyGrid::restrict_to_seen`]); `None`
+    /// when occupancy is not restricted.
+    pub fn seen_cells(&self) -> Option<u32> {
+        self.seen.as_ref().map(|mask| mask.iter().map(|w| w.count_ones()).sum())
+    }
+
     /// The cell densities to save with a checkpoint: `None` before the first update
     /// (the grid is then "all occupied", which its zero densities do not say).
     pub fn export_density(&self, gpu: &Gpu) -> Result<Option<Vec<f32>>, SamplerError> {

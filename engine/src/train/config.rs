@@ -38,18 +38,25 @@ pub struct SceneConfig {
     /// the full images downsampled on load; [`LoadOptions::llff_factor`]); `None`: the
     /// format's default (8 for LLFF, else 1), recorded by [`RunConfig::resolve_for`].
     pub llff_factor: Option<u32>,
+    /// Scale of the scene box about its centre (world-space scenes; Instant-NGP's
+    /// `aabb_scale`): above 1 the field reaches past the box the format gives, e.g. so
+    /// that a backdrop behind a DTU object can lie where it is instead of as fog inside
+    /// the object's box ([`LoadOptions::box_scale`]). The field's resolutions are per box:
+    /// scale `field.finest_resolution` and `sampler.resolution` with it to keep them.
+    pub box_scale: f32,
 }
 
 impl Default for SceneConfig {
     fn default() -> Self {
-        Self { path: PathBuf::new(), views: None, background: None, llff_factor: None }
+        Self { path: PathBuf::new(), views: None, background: None, llff_factor: None, box_scale: 1.0 }
     }
 }
 
 impl SceneConfig {
     /// How to load the scene this config names (split, background, LLFF factor).
     pub fn load_options(&self) -> LoadOptions {
-        let mut opts = LoadOptions { views: self.views, llff_factor: self.llff_factor, ..Default::default() };
+        let mut opts =
+            LoadOptions { views: self.views, llff_factor: self.llff_factor, box_scale: self.box_scale, ..Default::default() };
         if let Some(bg) = self.background {
             opts.background = bg;
         }
@@ -402,6 +409,9 @@ impl RunConfig {
         {
             return Err(format!("scene.llff_factor = {f} must lie in 1..=64"));
         }
+        if !(self.scene.box_scale.is_finite() && (0.1..=16.0).contains(&self.scene.box_scale)) {
+            return Err(format!("scene.box_scale = {}: must lie in [0.1, 16]", self.scene.box_scale));
+        }
         self.edges.validate().map_err(|e| format!("edges: {e}"))?;
         self.reg.validate()?;
         if self.reg.planarity_on() && self.train.batch != BatchKind::Patches {
@@ -651,6 +661,11 @@ mod tests {
             ("train.level_anneal.start_levels=0", "train.level_anneal.start_levels"),
             ("scene.background=[2,0,0]", "scene.background"),
             ("scene.llff_factor=0", "scene.llff_factor"),
+            ("scene.box_scale=0", "scene.box_scale"),
+            ("scene.box_scale=100", "scene.box_scale"),
+            ("sampler.seen_views=0", "seen_views"),
+            ("sampler.seen_views=2", "seen_cells_only"),
+            ("render.learned_background.shell_radius=0.5", "shell_radius"),
             ("render.transmittance_threshold=2", "render.transmittance_threshold"),
             ("reg.lambda_depth=-1", "reg.lambda_depth"),
             ("reg.tau_normal=-0.5", "reg.tau_normal"),

@@ -346,7 +346,8 @@ impl Trainer {
         check_edge_masks(&scene, masks.as_deref())?;
         let mut model = Model::new(&gpu, &scene, config)?;
         if let Some(bg) = &mut model.background {
-            let (dirs, colors) = model::frame_pixels(&scene);
+            let (rays, colors) = model::frame_pixels(&scene);
+            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect();
             bg.prefit(&dirs, &colors, BACKGROUND_PREFIT_STEPS);
         }
         Self::with_model(gpu, scene, model, masks)
@@ -551,7 +552,8 @@ impl Trainer {
         self.model.update_occupancy(&gpu, step, self.model.occupancy_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);
-        let background_dirs = self.model.background.is_some().then(|| batch.rays.iter().map(|r| r.dir).collect());
+        let background_dirs =
+            self.model.background.as_ref().map(|bg| batch.rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect());
         // The whole step goes into one encoder and one submission, with the readback at
         // its end (profiling submits once per stage instead).
         let mut enc = gpu.encoder();

@@ -145,16 +145,16 @@ pub fn footprint(scene: &Scene, sampler: &crate::sampler::SamplerConfig) -> Foot
     Footprint { radius0, radius1, point_var: cell * cell / 12.0 }
 }
 
-/// The test of whether a box `lo..hi` (world space) can appear in a training image: for
-/// some training camera, its corners are not all behind the camera and the bounding
-/// rectangle of their projections overlaps the image (conservative: a box straddling
-/// the camera plane counts as seen). The cameras' world-to-camera matrices are
-/// computed once, here, for the millions of cells the test then visits. NDC scenes
-/// need no such test: their box is the reference frustum.
-pub fn seen_by_training_cameras(scene: &Scene) -> impl Fn(glam::Vec3, glam::Vec3) -> bool + Sync + '_ {
+/// The test of whether a box `lo..hi` (world space) appears in at least `min_views`
+/// training images: a camera images it when its corners are not all behind the camera
+/// and the bounding rectangle of their projections overlaps the image (conservative: a
+/// box straddling the camera plane counts as seen). The cameras' world-to-camera
+/// matrices are computed once, here, for the millions of cells the test then visits.
+/// NDC scenes need no such test: their box is the reference frustum.
+pub fn seen_by_training_cameras(scene: &Scene, min_views: u32) -> impl Fn(glam::Vec3, glam::Vec3) -> bool + Sync + '_ {
     let cameras: Vec<_> = scene.train_views().map(|v| (&v.camera, v.camera.w2c())).collect();
     move |lo, hi| {
-        cameras.iter().any(|(cam, w2c)| {
+        let imaged = cameras.iter().filter(|(cam, w2c)| {
             let (mut min, mut max) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
             let mut behind = 0;
             for k in 0..8 {
@@ -176,7 +176,8 @@ pub fn seen_by_training_cameras(scene: &Scene) -> impl Fn(glam::Vec3, glam::Vec3
                 0 => max.x >= 0.0 && max.y >= 0.0 && min.x < cam.width as f32 && min.y < cam.height as f32,
                 _ => true,
             }
-        })
+        });
+        imaged.count() >= min_views as usize
     }
 }
 
@@ -196,11 +197,11 @@ pub fn background_of(config: &RunConfig, scene: &Scene) -> Background {
     }
 }
 
-/// The directions (the field's ray space) and colours of the pixels in a frame around
+/// The rays (the field's ray space) and colours of the pixels in a frame around
 /// each training image, `max(1, min(w, h) / 50)` pixels wide, at most about 20 000 in
 /// all (a regular subsample): what a learned background is fitted to before training
 /// (in object-centric captures the frame mostly shows what lies behind the object).
-pub fn frame_pixels(scene: &Scene) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+pub fn frame_pixels(scene: &Scene) -> (Vec<GpuRay>, Vec<[f32; 3]>) {
     let mut picked = Vec::new();
     for &v in &scene.split.train {
         let view = &scene.views[v];
@@ -224,7 +225,7 @@ pub fn frame_pixels(scene: &Scene) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
         let cam = &view.camera;
         let ray = cam.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
         let ray = scene.ndc.as_ref().map_or(ray, |ndc| ndc.ray_to_ndc(ray));
-        dirs.push(super::rays::to_gpu_ray(scene, &ray).dir);
+        dirs.push(super::rays::to_gpu_ray(scene, &ray));
         let i = 3 * (y * cam.width as usize + x);
         colors.push([view.image.data[i], view.image.data[i + 1], view.image.data[i + 2]]);
     }
@@ -241,12 +242,22 @@ impl Model {
         };
         let mut occupancy = OccupancyGrid::new(gpu, &config.sampler, scene.aabb)?;
         if config.sampler.seen_cells_only && scene.ndc.is_none() {
-            occupancy.restrict_to_seen(gpu, seen_by_training_cameras(scene))?;
+            let (need, have) = (config.sampler.seen_views, scene.split.train.len());
+            if need as usize > have {
+                return Err(TrainError::Config {
+                    source_name: "sampler.seen_views".into(),
+                    message: format!(
+                        "sampler.seen_views = {need}: a cell must be seen by more training cameras than the run has ({have}); \
+                         set it to at most {have}"
+                    ),
+                });
+            }
+            occupancy.restrict_to_seen(gpu, seen_by_training_cameras(scene, need))?;
         }
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
         render_config.background = background_of(&config, scene);
-        let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background));
+        let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background, scene.aabb.map(|v| v.to_array())));
         let renderer = Renderer::new(gpu, render_config)?;
         Ok(Model { config, field, occupancy, sampler, renderer, background, occupancy_densities: None, render_buffers: None })
     }
@@ -416,7 +427,7 @@ impl Model {
     /// (what the renderer composites behind it); nothing otherwise.
     pub(super) fn write_backgrounds(&self, gpu: &Gpu, rays: &[GpuRay], aux: &GpuBuffer<crate::layout::RayAux>) {
         if let Some(bg) = &self.background {
-            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| r.dir).collect();
+            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect();
             let rows: Vec<crate::layout::RayAux> =
                 bg.colors(&dirs).into_iter().map(|background| crate::layout::RayAux { background, ..Default::default() }).collect();
             aux.write(gpu, &rows);
@@ -500,7 +511,7 @@ mod tests {
     fn seen_cells_are_those_a_training_camera_images() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/occlusion");
         let scene = Scene::load(dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
-        let seen = seen_by_training_cameras(&scene);
+        let seen = seen_by_training_cameras(&scene, 1);
         let cell = |c: Vec3| (c - Vec3::splat(0.05), c + Vec3::splat(0.05));
         // The point every camera looks at, and a point just in front of a camera.
         let cam = &scene.train_views().next().unwrap().camera;
@@ -516,6 +527,25 @@ mod tests {
         // A box straddling a camera's plane counts as seen (conservative).
         let o = cam.origin();
         assert!(seen(o - Vec3::splat(0.2), o + Vec3::splat(0.2)));
+    }
+
+    /// `min_views` counts the cameras: the point all three training cameras look at is
+    /// seen by all three, a point just in front of one camera by that one alone.
+    #[test]
+    fn seen_views_count_the_training_cameras_that_image_a_cell() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/occlusion");
+        let scene = Scene::load(dir, &LoadOptions { views: Some(3), ..Default::default() }).unwrap();
+        let cell = |c: Vec3| (c - Vec3::splat(0.02), c + Vec3::splat(0.02));
+        let count = |p: Vec3| {
+            let (lo, hi) = cell(p);
+            (1..=4).filter(|&k| seen_by_training_cameras(&scene, k)(lo, hi)).count()
+        };
+        assert_eq!(count(Vec3::new(0.0, 1.5, 0.95)), 3, "the common target");
+        for view in scene.train_views() {
+            let cam = &view.camera;
+            let p = cam.origin() + 0.2 * cam.forward();
+            assert_eq!(count(p), 1, "just in front of {}", view.name);
+        }
     }
 }
 

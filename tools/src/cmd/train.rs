@@ -532,6 +532,13 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             c.finest_height
         );
     }
+    if let Some(seen) = trainer.model.occupancy.seen_cells() {
+        eprintln!(
+            "seen cells: {:.1} % of the occupancy grid is imaged by at least {} training camera(s); the rest is never marched (sampler.seen_cells_only, sampler.seen_views)",
+            100.0 * seen as f64 / (config.sampler.resolution as f64).powi(3),
+            config.sampler.seen_views
+        );
+    }
     let vis = &config.sampler.visibility;
     if vis.train {
         let faint = if vis.min_alpha > 0.0 {
