@@ -162,6 +162,12 @@ fn nerf_synthetic_layout() {
         (sparse.split.train.clone(), sparse.split.test.clone()),
         (vec![0, 1], vec![2])
     );
+    // With the unused views (the val split), the left-out frame 1 follows the test frame.
+    let with_val = Scene::load(dir.path(), &LoadOptions { views: Some(2), unused_views: true, ..Default::default() }).unwrap();
+    assert_eq!(with_val.views.iter().map(|v| v.camera.origin().y).collect::<Vec<_>>(), [0.0, 2.0, -1.0, 1.0]);
+    assert_eq!((&with_val.split, with_val.split.unused(with_val.views.len())), (&sparse.split, vec![3]));
+    let all = Scene::load(dir.path(), &LoadOptions { unused_views: true, ..Default::default() }).unwrap();
+    assert!(all.split.unused(all.views.len()).is_empty());
     assert!(
         Scene::load(
             dir.path(),

@@ -29,7 +29,8 @@
 //!   `round(linspace(0, n_train - 1, k))`; test = `transforms_test.json`
 //!   (`transforms_val.json` only when there is no test file). `Scene::views` holds the
 //!   selected training frames (in that order) followed by the test frames; unselected
-//!   training frames are not loaded.
+//!   training frames follow those with [`LoadOptions::unused_views`] (the `val` split),
+//!   and are not loaded otherwise.
 
 use std::path::{Path, PathBuf};
 
@@ -332,6 +333,11 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         train: (0..n_train).collect(),
         test: (n_train..views.len()).collect(),
     };
+    if opts.unused_views {
+        for i in (0..train.frames.len()).filter(|i| !selected.contains(i)) {
+            views.push(loader.frame(&train_json, &train, i)?);
+        }
+    }
 
     let near = train.near.unwrap_or(DEFAULT_NEAR_FAR.0);
     let far = train.far.unwrap_or(DEFAULT_NEAR_FAR.1);

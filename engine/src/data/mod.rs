@@ -128,11 +128,15 @@ pub struct LoadOptions {
     pub load_images: bool,
     /// Scale of the format's scene box about its centre ([`Scene::scale_box`]); 1 keeps it.
     pub box_scale: f32,
+    /// Also load the training-side views a sparse split leaves out, after the test views
+    /// (Blender format, whose loader otherwise skips them; the other formats always hold
+    /// every view): the `val` split ([`Split::unused`]). Training leaves it off.
+    pub unused_views: bool,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true, box_scale: 1.0 }
+        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true, box_scale: 1.0, unused_views: false }
     }
 }
 

@@ -1,5 +1,6 @@
 //! A learned background for captures without alpha: what a ray that leaves the scene
-//! box sees, as a function of its direction, trained with the field.
+//! box sees, as a function of its direction (or of where it crosses a shell around the
+//! box), trained with the field.
 //!
 //! Photographs have no alpha: whatever lies beyond the field's box (DTU's backdrop, a
 //! room behind an object, the white a capture was composited on) must be explained by
@@ -26,6 +27,13 @@
 //!
 //! Direction to texture: `u = atan2(d.y, d.x) / 2 pi + 1/2` (wrapping), `v =
 //! acos(d.z) / pi` (clamped at the poles); texel centres at `(i + 1/2) / w`.
+//!
+//! **The shell** (`shell_radius > 1`): the map lies on a sphere around the box, and a
+//! ray reads it in the direction from the sphere's centre to where the ray leaves the
+//! sphere ([`LearnedBackground::lookup_dir`]; the callers map every ray through it before
+//! [`LearnedBackground::colors`] and [`LearnedBackground::step`]). A backdrop at a
+//! finite distance then shows parallax between views, so a finer map can hold it
+//! without being each camera's own picture of the object.
 //!
 //! Invariants: [`LearnedBackground::colors`] is a pure function of the parameters and
 //! the directions; the gradient of [`LearnedBackground::step`] is the exact derivative

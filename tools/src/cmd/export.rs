@@ -47,7 +47,7 @@ impl RunArgs {
     /// folder of `out` created.
     fn load(&self, out: &Path, gpu_opts: &GpuOptions) -> anyhow::Result<crate::cmd::render::LoadedRun> {
         let check = crate::cmd::render::OutputCheck { out, allow_other_scene: self.allow_other_scene };
-        let run = crate::cmd::render::load_run(&self.run, self.scene.as_deref(), &self.overrides, gpu_opts, check)?;
+        let run = crate::cmd::render::load_run(&self.run, self.scene.as_deref(), &self.overrides, gpu_opts, check, false)?;
         if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }

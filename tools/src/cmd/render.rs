@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use edgenerf::data::{Camera, PathKind, Scene};
+use edgenerf::data::{Camera, LoadOptions, PathKind, Scene};
 use edgenerf::gpu::{Gpu, GpuOptions};
 use edgenerf::train::{Checkpoint, Model};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -87,7 +87,8 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         None => None,
     };
     let check = crate::cmd::render::OutputCheck { out: &args.out, allow_other_scene: args.allow_other_scene };
-    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts, check)?;
+    let unused_views = matches!(args.split.as_str(), "val" | "all");
+    let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts, check, unused_views)?;
     // Created once the run loaded; removed again if nothing gets written into it.
     let _out = crate::output::OutDir::create(&args.out, "--out")?;
     if let Some(b) = &args.backend {
@@ -261,6 +262,7 @@ pub fn load_run(
     overrides: &[String],
     gpu_opts: &GpuOptions,
     check: OutputCheck,
+    unused_views: bool,
 ) -> anyhow::Result<LoadedRun> {
     let path = if checkpoint.is_dir() { checkpoint.join("checkpoint.safetensors") } else { checkpoint.to_path_buf() };
     let mut ckpt = Checkpoint::load(&path)?;
@@ -304,7 +306,8 @@ pub fn load_run(
         ckpt.config.resolve();
         ckpt.config.validate().map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
-    let scene = Scene::load(&scene_path, &ckpt.config.scene.load_options()).with_context(|| match scene {
+    let opts = LoadOptions { unused_views, ..ckpt.config.scene.load_options() };
+    let scene = Scene::load(&scene_path, &opts).with_context(|| match scene {
         Some(_) => format!("loading --scene {} (the run was trained on {})", scene_path.display(), recorded.display()),
         None => format!("loading the checkpoint's scene {} (pass --scene to point elsewhere)", scene_path.display()),
     })?;
