@@ -527,7 +527,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if let Some(bg) = &trainer.model.background {
         let c = bg.config();
         eprintln!(
-            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour per direction (finest map {}x{} texels, fitted first to the images' frames; render.background = {{kind = \"black\"}} for none)",
+            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour {} (finest map {}x{} texels, fitted first to the images' frames; render.background = {{kind = \"black\"}} for none)",
+            if c.shell_radius > 0.0 {
+                format!("where they cross a sphere {} box half-diagonals from its centre", c.shell_radius)
+            } else {
+                "per direction".to_string()
+            },
             2 * c.finest_height,
             c.finest_height
         );
