@@ -172,7 +172,10 @@ pub struct SamplerConfig {
     /// count as seen (1: any camera, Instant-NGP's rule). Above 1, space that only one
     /// camera sees, where nothing but that one photograph constrains the density (fog
     /// in front of a camera that explains its image and veils the object from every
-    /// other view), is never marched. Uses the cameras only, never masks.
+    /// other view), is never marched. Uses the cameras only, never masks. Measured
+    /// (docs/results/real-captures.md): `room`, 3 views, 2: half the field samples per
+    /// ray, +0.16 dB, SSIM -0.03; DTU, 9 views (no space there only one camera sees),
+    /// 2: -0.11 dB, 4: -0.92 dB.
     pub seen_views: u32,
     /// The visibility pass ([`visibility`]): the field's density at every marched
     /// sample, then only the samples a ray can still see reach the full forward.
