@@ -207,6 +207,13 @@ impl LearnedBackground {
         [0, 1, 2].map(|k| o[k] + t * dir[k])
     }
 
+    /// [`LearnedBackground::lookup_dir`] of each ray: what every caller hands
+    /// [`LearnedBackground::colors`], [`LearnedBackground::step`] and
+    /// [`LearnedBackground::prefit`], so that training and rendering read the same texels.
+    pub fn ray_dirs(&self, rays: &[crate::layout::GpuRay]) -> Vec<[f32; 3]> {
+        rays.iter().map(|r| self.lookup_dir(r.origin, r.dir)).collect()
+    }
+
     pub fn config(&self) -> &LearnedBackgroundConfig {
         &self.config
     }

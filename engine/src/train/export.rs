@@ -139,11 +139,8 @@ pub fn depth_points(
         let r = model.render_view(gpu, scene, v)?;
         let rays = scene.image_rays(v);
         let learned = model.background.as_ref().map(|bg| {
-            let dirs: Vec<[f32; 3]> = rays
-                .iter()
-                .map(|r| super::rays::to_gpu_ray(scene, r))
-                .map(|r| bg.lookup_dir(r.origin, r.dir))
-                .collect();
+            let gpu_rays: Vec<_> = rays.iter().map(|r| super::rays::to_gpu_ray(scene, r)).collect();
+            let dirs = bg.ray_dirs(&gpu_rays);
             bg.colors(&dirs)
         });
         let normals = r.unit_normals();

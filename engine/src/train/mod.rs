@@ -347,8 +347,7 @@ impl Trainer {
         let mut model = Model::new(&gpu, &scene, config)?;
         if let Some(bg) = &mut model.background {
             let (rays, colors) = model::frame_pixels(&scene);
-            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect();
-            bg.prefit(&dirs, &colors, BACKGROUND_PREFIT_STEPS);
+            bg.prefit(&bg.ray_dirs(&rays), &colors, BACKGROUND_PREFIT_STEPS);
         }
         Self::with_model(gpu, scene, model, masks)
     }
@@ -552,8 +551,7 @@ impl Trainer {
         self.model.update_occupancy(&gpu, step, self.model.occupancy_seed(step), false)?;
         self.end_stage(Stage::OccupancyGrid)?;
         let plan = self.plan(&batch);
-        let background_dirs =
-            self.model.background.as_ref().map(|bg| batch.rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect());
+        let background_dirs = self.model.background.as_ref().map(|bg| bg.ray_dirs(&batch.rays));
         // The whole step goes into one encoder and one submission, with the readback at
         // its end (profiling submits once per stage instead).
         let mut enc = gpu.encoder();

@@ -427,7 +427,7 @@ impl Model {
     /// (what the renderer composites behind it); nothing otherwise.
     pub(super) fn write_backgrounds(&self, gpu: &Gpu, rays: &[GpuRay], aux: &GpuBuffer<crate::layout::RayAux>) {
         if let Some(bg) = &self.background {
-            let dirs: Vec<[f32; 3]> = rays.iter().map(|r| bg.lookup_dir(r.origin, r.dir)).collect();
+            let dirs = bg.ray_dirs(rays);
             let rows: Vec<crate::layout::RayAux> =
                 bg.colors(&dirs).into_iter().map(|background| crate::layout::RayAux { background, ..Default::default() }).collect();
             aux.write(gpu, &rows);
