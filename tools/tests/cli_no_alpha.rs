@@ -8,7 +8,8 @@
 //! and the RGBA original's beside them).
 //!
 //! `EDGENERF_NO_ALPHA_ITERS` sets the steps (default 200), `EDGENERF_NO_ALPHA_KEEP` a
-//! folder where the nerfstudio copy is written and kept (to train it by hand), and
+//! new or empty folder where the nerfstudio copy is written and kept (to train it by
+//! hand; a folder with files in it is refused), and
 //! `EDGENERF_NO_ALPHA_SCENE` another committed scene with alpha to convert (`thin`,
 //! `creases`, `smooth`; the bar below is measured on `turntable`).
 
@@ -66,7 +67,17 @@ fn a_capture_composited_on_white_is_explained_by_the_learned_background_not_fog(
     let scene = std::env::var("EDGENERF_NO_ALPHA_SCENE").unwrap_or_else(|_| "turntable".into());
     let original = repo().join("synthetic-scenes/small").join(&scene);
     let copy = match std::env::var_os("EDGENERF_NO_ALPHA_KEEP") {
-        Some(dir) => std::path::PathBuf::from(dir),
+        Some(dir) => {
+            let dir = std::path::PathBuf::from(dir);
+            let empty = std::fs::read_dir(&dir).map_or(!dir.exists(), |mut entries| entries.next().is_none());
+            assert!(
+                empty,
+                "EDGENERF_NO_ALPHA_KEEP={}: the folder holds files, which the copy's images/ and transforms.json could \
+                 overwrite; name a new or empty folder",
+                dir.display()
+            );
+            dir
+        }
         None => tmp.path().join(format!("{scene}-ns")),
     };
     nerfstudio_on_white(&original, &copy);
