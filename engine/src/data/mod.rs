@@ -220,17 +220,11 @@ impl Scene {
         }
         let [lo, hi] = self.aabb;
         let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5 * scale);
-        self.aabb = [centre - half, centre + half];
-        let corners = (0..8).map(|i| {
-            let pick = |bit: usize, axis: usize| if i >> bit & 1 == 1 { self.aabb[1][axis] } else { self.aabb[0][axis] };
-            glam::Vec3::new(pick(0, 0), pick(1, 1), pick(2, 2))
-        });
-        let corners: Vec<_> = corners.collect();
-        let reach = self
-            .views
-            .iter()
-            .flat_map(|v| corners.iter().map(move |c| v.camera.origin().distance(*c)))
-            .fold(0.0f32, f32::max);
+        let [lo, hi] = [centre - half, centre + half];
+        self.aabb = [lo, hi];
+        // A camera's farthest corner takes, on each axis, the farther of the two faces.
+        let farthest_corner = |o: glam::Vec3| (o - lo).abs().max((o - hi).abs()).length();
+        let reach = self.views.iter().map(|v| farthest_corner(v.camera.origin())).fold(0.0f32, f32::max);
         self.far = self.far.max(reach);
         Ok(())
     }

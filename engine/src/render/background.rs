@@ -39,6 +39,7 @@
 //! the directions; the gradient of [`LearnedBackground::step`] is the exact derivative
 //! of `sum_r <g_r, bg(d_r)>` (a finite-difference test checks it).
 
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 /// Settings of the learned background (`render.learned_background`).
@@ -126,7 +127,7 @@ const ADAM_T: &str = "background.adam_t";
 pub struct LearnedBackground {
     config: LearnedBackgroundConfig,
     /// The shell's centre and radius in the field's space (`config.shell_radius` > 0).
-    shell: Option<([f32; 3], f32)>,
+    shell: Option<(Vec3, f32)>,
     /// Per map: offset of its first texel (RGB triples) in `logits`, height, width.
     maps: Vec<(usize, usize, usize)>,
     /// Pre-sigmoid values, 3 per texel, the maps one after the other (row-major, `v`
@@ -166,7 +167,7 @@ fn sigmoid(x: f32) -> f32 {
 impl LearnedBackground {
     /// A map at its initial colour (`config.init` everywhere) for a scene box `aabb` (the
     /// shell's centre and size). Call [`LearnedBackgroundConfig::validate`] first.
-    pub fn new(config: LearnedBackgroundConfig, aabb: [[f32; 3]; 2]) -> Self {
+    pub fn new(config: LearnedBackgroundConfig, aabb: [Vec3; 2]) -> Self {
         let mut maps = Vec::new();
         let mut n = 0;
         for (h, w) in config.sizes() {
@@ -178,12 +179,8 @@ impl LearnedBackground {
         let mut logits = vec![0.0; 3 * n];
         let (_, h0, w0) = maps[0];
         logits[..3 * h0 * w0].fill(init);
-        let shell = (config.shell_radius > 0.0).then(|| {
-            let [lo, hi] = aabb;
-            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-            let half_diagonal = [0, 1, 2].map(|k| 0.5 * (hi[k] - lo[k])).iter().map(|x| x * x).sum::<f32>().sqrt();
-            (centre, config.shell_radius * half_diagonal)
-        });
+        let [lo, hi] = aabb;
+        let shell = (config.shell_radius > 0.0).then(|| ((lo + hi) * 0.5, config.shell_radius * (hi - lo).length() * 0.5));
         Self { config, shell, maps, logits, m: vec![0.0; 3 * n], v: vec![0.0; 3 * n], t: 0 }
     }
 
@@ -193,9 +190,8 @@ impl LearnedBackground {
     /// that misses it (an origin outside the shell, looking away).
     pub fn lookup_dir(&self, origin: [f32; 3], dir: [f32; 3]) -> [f32; 3] {
         let Some((c, r)) = self.shell else { return dir };
-        let o = [0, 1, 2].map(|k| origin[k] - c[k]);
-        let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-        let (a, b, cc) = (dot(dir, dir), dot(o, dir), dot(o, o) - r * r);
+        let (o, d) = (Vec3::from(origin) - c, Vec3::from(dir));
+        let (a, b, cc) = (d.dot(d), o.dot(d), o.dot(o) - r * r);
         let disc = b * b - a * cc;
         if !(a > 0.0 && disc >= 0.0) {
             return dir;
@@ -204,7 +200,7 @@ impl LearnedBackground {
         if t <= 0.0 {
             return dir;
         }
-        [0, 1, 2].map(|k| o[k] + t * dir[k])
+        (o + t * d).to_array()
     }
 
     /// [`LearnedBackground::lookup_dir`] of each ray: what every caller hands
@@ -351,7 +347,7 @@ impl LearnedBackground {
 mod tests {
     use super::*;
 
-    const UNIT_BOX: [[f32; 3]; 2] = [[-1.0; 3], [1.0; 3]];
+    const UNIT_BOX: [Vec3; 2] = [Vec3::splat(-1.0), Vec3::splat(1.0)];
 
     /// A map at infinity is read by the ray's direction; a shell by the direction from
     /// its centre to the exit point, which lies on the sphere and along the ray.
@@ -359,7 +355,7 @@ mod tests {
     fn shell_lookup_is_where_the_ray_leaves_the_sphere() {
         let at_infinity = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         assert_eq!(at_infinity.lookup_dir([0.5, 2.0, -1.0], [0.3, -0.2, 0.9]), [0.3, -0.2, 0.9]);
-        let aabb = [[1.0, 0.0, -2.0], [3.0, 4.0, 2.0]];
+        let aabb = [Vec3::new(1.0, 0.0, -2.0), Vec3::new(3.0, 4.0, 2.0)];
         let shell = LearnedBackground::new(LearnedBackgroundConfig { shell_radius: 2.0, ..Default::default() }, aabb);
         let (c, r) = ([2.0f32, 2.0, 0.0], 2.0 * 3.0); // half diagonal |(1, 2, 2)| = 3
         let norm = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();

@@ -219,17 +219,17 @@ pub fn frame_pixels(scene: &Scene) -> (Vec<GpuRay>, Vec<[f32; 3]>) {
         }
     }
     let stride = picked.len().div_ceil(20_000).max(1);
-    let (mut dirs, mut colors) = (Vec::new(), Vec::new());
+    let (mut rays, mut colors) = (Vec::new(), Vec::new());
     for &(v, x, y) in picked.iter().step_by(stride) {
         let view = &scene.views[v];
         let cam = &view.camera;
         let ray = cam.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
         let ray = scene.ndc.as_ref().map_or(ray, |ndc| ndc.ray_to_ndc(ray));
-        dirs.push(super::rays::to_gpu_ray(scene, &ray));
+        rays.push(super::rays::to_gpu_ray(scene, &ray));
         let i = 3 * (y * cam.width as usize + x);
         colors.push([view.image.data[i], view.image.data[i + 1], view.image.data[i + 2]]);
     }
-    (dirs, colors)
+    (rays, colors)
 }
 
 impl Model {
@@ -257,7 +257,7 @@ impl Model {
         let sampler = Sampler::new(&config.sampler, scene.aabb)?;
         let mut render_config = config.render;
         render_config.background = background_of(&config, scene);
-        let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background, scene.aabb.map(|v| v.to_array())));
+        let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background, scene.aabb));
         let renderer = Renderer::new(gpu, render_config)?;
         Ok(Model { config, field, occupancy, sampler, renderer, background, occupancy_densities: None, render_buffers: None })
     }

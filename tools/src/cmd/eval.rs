@@ -282,7 +282,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     });
     crate::output::refuse_file(&out, "--out")?;
     let check = crate::cmd::render::OutputCheck { out: &out, allow_other_scene: args.allow_other_scene };
-    let unused_views = matches!(args.split.as_str(), "val" | "all");
+    let unused_views = crate::cmd::render::split_needs_unused_views(&args.split);
     let mut run = crate::cmd::render::load_run(&args.run, args.scene.as_deref(), &args.overrides, gpu_opts, check, unused_views)?;
     // Created once the run loaded; removed again if nothing gets written into it.
     let _out = crate::output::OutDir::create(&out, "--out")?;

@@ -87,7 +87,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         None => None,
     };
     let check = crate::cmd::render::OutputCheck { out: &args.out, allow_other_scene: args.allow_other_scene };
-    let unused_views = matches!(args.split.as_str(), "val" | "all");
+    let unused_views = split_needs_unused_views(&args.split);
     let mut run = load_run(&args.checkpoint, args.scene.as_deref(), &args.overrides, gpu_opts, check, unused_views)?;
     // Created once the run loaded; removed again if nothing gets written into it.
     let _out = crate::output::OutDir::create(&args.out, "--out")?;
@@ -315,6 +315,12 @@ pub fn load_run(
     let model = Model::from_checkpoint(&gpu, &scene, &ckpt)
         .with_context(|| format!("loading the model of {} on {}", path.display(), scene_path.display()))?;
     Ok(LoadedRun { gpu, scene, model, step: ckpt.step })
+}
+
+/// Whether the views of `split` include those a sparse split leaves out, which a
+/// Blender-format scene loads only on request ([`LoadOptions::unused_views`]).
+pub fn split_needs_unused_views(split: &str) -> bool {
+    matches!(split, "val" | "all")
 }
 
 /// The view indices of a split name: `test`, `train`, `val` (every view in neither the
