@@ -62,4 +62,18 @@ mod tests {
         let object = SPARSE_OBJECT.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
         assert_eq!(object, small, "sparse-object.toml's tables from [field] on must be sparse-small.toml's");
     }
+
+    /// The DTU preset's `[[with_views]]`: 3 views keep the view-independent colour and
+    /// 800 steps; the protocol's 9 views get band-2 colour and 4800 steps.
+    #[test]
+    fn dtu_preset_follows_the_view_count() {
+        let dtu = RunConfig::from_text_for(SPARSE_DTU.text, true, SPARSE_DTU.path, None).unwrap();
+        for (views, sh, iters) in [(3, 0, 800), (8, 0, 800), (9, 2, 4800)] {
+            let mut c = dtu.clone();
+            c.apply_with_views(views).unwrap();
+            c.resolve();
+            c.validate().unwrap();
+            assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
+        }
+    }
 }

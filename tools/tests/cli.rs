@@ -406,3 +406,38 @@ fn a_sparse_run_without_config_uses_the_format_preset() {
     assert!(!t.contains("preset tools/configs"), "{t}");
     assert_eq!(config["reg"]["lambda_depth"].as_f64().unwrap() as f32, defaults.reg.lambda_depth);
 }
+
+/// A config's `[[with_views]]` tables apply from their view count (`--views K`, or the
+/// scene's training views without it), under `--iters` and `--set`, and leave
+/// `config.json` with the values they set and without the tables.
+#[test]
+fn with_views_tables_follow_the_view_count() {
+    let out = tempfile::tempdir().unwrap();
+    let file = out.path().join("views.toml");
+    std::fs::write(
+        &file,
+        "[field]\nn_levels = 8\nlog2_hashmap_size = 16\nfinest_resolution = 256.0\nhidden_width = 32\n\n\
+         [sampler]\nsteps_per_diagonal = 48.0\n\n[train]\niters = 1\n\n\
+         [[with_views]]\nmin_views = 3\nset = [\"train.rays_per_batch=512\", \"train.iters=2\"]\n",
+    )
+    .unwrap();
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let run = |name: &str, extra: &[&str]| {
+        let dir = out.path().join(name);
+        let mut args = vec!["train", scene.to_str().unwrap(), "--config", file.to_str().unwrap(), "--out", dir.to_str().unwrap(), "--no-eval"];
+        args.extend_from_slice(extra);
+        let o = edgenerf(&args);
+        assert!(o.status.success(), "{name}: {}", text(&o));
+        let config: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("config.json")).unwrap()).unwrap();
+        assert!(config.get("with_views").is_none(), "{name}: config.json keeps the tables");
+        (text(&o), config["train"]["rays_per_batch"].as_u64().unwrap(), config["train"]["iters"].as_u64().unwrap())
+    };
+    let (t, rays, iters) = run("three", &["--views", "3"]);
+    assert_eq!((rays, iters), (512, 2), "{t}");
+    assert!(t.contains("3 training views: the config's [[with_views]] sets train.rays_per_batch=512, train.iters=2"), "{t}");
+    assert_eq!(run("two", &["--views", "2"]).1, 4096, "2 views are under min_views = 3");
+    assert_eq!(run("all", &[]).1, 512, "every training view of the scene (more than 3)");
+    let (_, rays, iters) = run("flags", &["--views", "3", "--iters", "1", "--set", "train.rays_per_batch=256"]);
+    assert_eq!((rays, iters), (256, 1), "--iters and --set win over the tables");
+}

@@ -260,6 +260,22 @@ pub struct RunConfig {
     /// Sparse-view priors on each ray's weights: mip-NeRF 360's distortion loss and
     /// FreeNeRF's occlusion regularization ([`crate::render::priors`]).
     pub priors: PriorConfig,
+    /// Settings for runs with more training views (`[[with_views]]` tables of a preset):
+    /// each one whose `min_views` the run reaches is applied, in order, by
+    /// [`RunConfig::apply_with_views`] before the command line's options; empty in a
+    /// config that ran (`config.json`, checkpoints), which holds the values applied.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub with_views: Vec<WithViews>,
+}
+
+/// Assignments (as `--set key=value`) for runs with at least `min_views` training
+/// views: a preset chosen for 3 views holds what more views want, e.g. a colour that
+/// follows the view direction once enough views pin it down.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WithViews {
+    pub min_views: usize,
+    pub set: Vec<String>,
 }
 
 impl RunConfig {
@@ -366,16 +382,17 @@ impl RunConfig {
             serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
         let mut root = serde_json::to_value(&*self).map_err(|e| bad(e.to_string()))?;
         let mut node = &mut root;
-        // Inside an optional table that was unset, every key is new: serde's
-        // `deny_unknown_fields` judges them when the result is deserialized.
+        // Inside an optional table that was unset, every key is new, and so is an unset
+        // optional key (absent from the serialized config, as `decay.for_iters`):
+        // serde's `deny_unknown_fields` and the round trip judge them when the result
+        // is deserialized.
         let mut fresh = false;
+        let mut absent = false;
         let parts: Vec<&str> = key.split('.').collect();
         for (i, part) in parts.iter().enumerate() {
             let obj = node.as_object_mut().ok_or_else(|| bad(format!("{} is not a table", parts[..i].join("."))))?;
             if i + 1 == parts.len() {
-                if !fresh && !obj.contains_key(*part) {
-                    return Err(bad(format!("unknown key {key:?}")));
-                }
+                absent = !obj.contains_key(*part);
                 obj.insert(part.to_string(), value.clone());
                 break;
             }
@@ -389,8 +406,30 @@ impl RunConfig {
             }
             node = next;
         }
-        *self = from_value_with_path(root).map_err(bad)?;
+        *self = from_value_with_path(root).map_err(|e| match absent && e.contains("unknown") {
+            true => bad(format!("unknown key {key:?} ({e})")),
+            false => bad(e),
+        })?;
         Ok(())
+    }
+
+    /// Applies, in order, the `[[with_views]]` tables whose `min_views` a run of `views`
+    /// training views reaches, then empties the list (a config that ran holds values, not
+    /// rules). Returns the assignments applied, for the log. An assignment that names no
+    /// key or a wrong type is an error naming the table.
+    pub fn apply_with_views(&mut self, views: usize) -> Result<Vec<String>, TrainError> {
+        let tables = std::mem::take(&mut self.with_views);
+        let mut applied = Vec::new();
+        for table in tables.iter().filter(|t| views >= t.min_views) {
+            for assignment in &table.set {
+                self.set(assignment).map_err(|e| TrainError::Config {
+                    source_name: format!("[[with_views]] min_views = {}", table.min_views),
+                    message: e.to_string(),
+                })?;
+                applied.push(assignment.clone());
+            }
+        }
+        Ok(applied)
     }
 
     /// Checks every value's range, section by section, without touching the GPU or the
@@ -399,6 +438,12 @@ impl RunConfig {
     /// least its section.
     pub fn validate(&self) -> Result<(), String> {
         self.train.validate()?;
+        if let Some(t) = self.with_views.iter().find(|t| t.min_views < 2 || t.set.is_empty()) {
+            return Err(format!(
+                "[[with_views]] min_views = {}: needs min_views of at least 2 and at least one assignment in set",
+                t.min_views
+            ));
+        }
         if let Some(bg) = self.scene.background
             && !bg.iter().all(|c| (0.0..=1.0).contains(c))
         {
@@ -557,7 +602,17 @@ mod tests {
         assert_eq!(c.train.level_anneal, Some(LevelAnneal { steps: 50, ..Default::default() }));
         let mut d = RunConfig::default();
         assert!(d.set("train.level_anneal.stpes=50").is_err(), "typos inside a fresh table are caught too");
-        assert!(c.set("train.itres=1").is_err());
+        assert!(c.set("train.itres=1").unwrap_err().to_string().contains("unknown key \"train.itres\""));
+        // An unset optional key is not in the serialized config, and can still be set.
+        c.set("optim.schedule.decay={\"kind\": \"exponential\", \"start\": 500, \"interval\": 100, \"base\": 0.7}").unwrap();
+        c.set("optim.schedule.decay.for_iters=2000").unwrap();
+        match c.optim.schedule {
+            LrSchedule::Ngp { decay: crate::optim::LrDecay::Exponential { start: 500, for_iters, .. }, .. } => {
+                assert_eq!(for_iters, Some(2000))
+            }
+            ref other => panic!("{other:?}"),
+        }
+        assert!(c.set("optim.schedule.decay.for_itres=2000").unwrap_err().to_string().contains("unknown key"));
         assert!(c.set("train.iters=-1").is_err());
         assert!(c.set("noequals").is_err());
     }
@@ -697,5 +752,39 @@ mod tests {
         assert_eq!(partial.train.iters, 7);
         assert_eq!(partial.field, GridConfig::default());
         assert!(toml::from_str::<RunConfig>("[train]\nbogus = 1\n").is_err());
+    }
+
+    /// `[[with_views]]` tables apply, in order, only where the run has `min_views`
+    /// training views, then leave the config (a config that ran holds values, not
+    /// rules); a wrong assignment names its table; a table that could never apply or
+    /// sets nothing is refused.
+    #[test]
+    fn with_views_apply_from_their_view_count() {
+        let text = "[train]\niters = 800\n\n[[with_views]]\nmin_views = 6\nset = [\"field.sh_degree=1\", \"train.iters=2400\"]\n\n[[with_views]]\nmin_views = 9\nset = [\"field.sh_degree=2\"]\n";
+        let preset = RunConfig::from_text_for(text, true, "preset.toml", None).unwrap();
+        assert_eq!(preset.with_views.len(), 2);
+        let runs: Vec<(usize, u32, u64)> = [3, 6, 8, 9, 49]
+            .into_iter()
+            .map(|views| {
+                let mut c = preset.clone();
+                let applied = c.apply_with_views(views).unwrap();
+                assert!(c.with_views.is_empty(), "{views} views: the tables stay in the config");
+                assert!(!c.to_json().contains("with_views"), "{views} views: config.json names with_views");
+                assert_eq!(applied.len(), [0, 2, 2, 3, 3][[3, 6, 8, 9, 49].iter().position(|&v| v == views).unwrap()]);
+                (views, c.field.sh_degree, c.train.iters)
+            })
+            .collect();
+        assert_eq!(runs, [(3, 3, 800), (6, 1, 2400), (8, 1, 2400), (9, 2, 2400), (49, 2, 2400)]);
+
+        let bad = RunConfig::from_text_for("[[with_views]]\nmin_views = 4\nset = [\"field.no_such=1\"]\n", true, "p", None).unwrap();
+        let e = bad.clone().apply_with_views(5).unwrap_err().to_string();
+        assert!(e.contains("min_views = 4") && e.contains("field.no_such"), "{e}");
+        assert!(bad.clone().apply_with_views(3).unwrap().is_empty(), "a table under its view count is not read");
+
+        for text in ["[[with_views]]\nmin_views = 1\nset = [\"train.iters=5\"]\n", "[[with_views]]\nmin_views = 5\nset = []\n"] {
+            let c = RunConfig::from_text_for(text, true, "p", None).unwrap();
+            let e = c.validate().unwrap_err();
+            assert!(e.contains("[[with_views]]"), "{text}: {e}");
+        }
     }
 }

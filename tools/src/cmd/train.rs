@@ -110,6 +110,17 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     if args.input.llff_factor.is_some() {
         config.scene.llff_factor = args.input.llff_factor;
     }
+    // The preset's settings for more views, under every option of the command line.
+    if !config.with_views.is_empty() {
+        let views = match args.input.views {
+            Some(k) => k,
+            None => load_scene_cameras(&config)?.split.train.len(),
+        };
+        let applied = config.apply_with_views(views)?;
+        if !applied.is_empty() {
+            eprintln!("{views} training views: the config's [[with_views]] sets {}", applied.join(", "));
+        }
+    }
     if let Some(iters) = args.iters {
         config.train.iters = iters;
     }
@@ -198,6 +209,12 @@ fn check_reprojection_fits(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyh
         edgenerf::train::pipeline::check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
     }
     Ok(())
+}
+
+/// The scene's cameras and splits without its images (how many training views a run has).
+fn load_scene_cameras(config: &RunConfig) -> anyhow::Result<Scene> {
+    let opts = LoadOptions { load_images: false, ..config.scene.load_options() };
+    Scene::load(&config.scene.path, &opts).with_context(|| format!("loading {}", config.scene.path.display()))
 }
 
 pub(crate) fn load_scene(config: &RunConfig) -> anyhow::Result<Scene> {
