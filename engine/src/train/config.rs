@@ -418,6 +418,7 @@ impl RunConfig {
     /// rules). Returns the assignments applied, for the log. An assignment that names no
     /// key or a wrong type is an error naming the table.
     pub fn apply_with_views(&mut self, views: usize) -> Result<Vec<String>, TrainError> {
+        self.check_with_views().map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
         let tables = std::mem::take(&mut self.with_views);
         let mut applied = Vec::new();
         for table in tables.iter().filter(|t| views >= t.min_views) {
@@ -432,18 +433,25 @@ impl RunConfig {
         Ok(applied)
     }
 
+    /// A `[[with_views]]` table that could never apply (`min_views` under 2) or sets
+    /// nothing is an error, whether the tables are validated or applied first.
+    fn check_with_views(&self) -> Result<(), String> {
+        match self.with_views.iter().find(|t| t.min_views < 2 || t.set.is_empty()) {
+            Some(t) => Err(format!(
+                "[[with_views]] min_views = {}: needs min_views of at least 2 and at least one assignment in set",
+                t.min_views
+            )),
+            None => Ok(()),
+        }
+    }
+
     /// Checks every value's range, section by section, without touching the GPU or the
     /// scene (the CLI calls it on the config it built, before any work; the trainer
     /// again). Call [`RunConfig::resolve`] first. The message names the key, or at
     /// least its section.
     pub fn validate(&self) -> Result<(), String> {
         self.train.validate()?;
-        if let Some(t) = self.with_views.iter().find(|t| t.min_views < 2 || t.set.is_empty()) {
-            return Err(format!(
-                "[[with_views]] min_views = {}: needs min_views of at least 2 and at least one assignment in set",
-                t.min_views
-            ));
-        }
+        self.check_with_views()?;
         if let Some(bg) = self.scene.background
             && !bg.iter().all(|c| (0.0..=1.0).contains(c))
         {
@@ -763,18 +771,13 @@ mod tests {
         let text = "[train]\niters = 800\n\n[[with_views]]\nmin_views = 6\nset = [\"field.sh_degree=1\", \"train.iters=2400\"]\n\n[[with_views]]\nmin_views = 9\nset = [\"field.sh_degree=2\"]\n";
         let preset = RunConfig::from_text_for(text, true, "preset.toml", None).unwrap();
         assert_eq!(preset.with_views.len(), 2);
-        let runs: Vec<(usize, u32, u64)> = [3, 6, 8, 9, 49]
-            .into_iter()
-            .map(|views| {
-                let mut c = preset.clone();
-                let applied = c.apply_with_views(views).unwrap();
-                assert!(c.with_views.is_empty(), "{views} views: the tables stay in the config");
-                assert!(!c.to_json().contains("with_views"), "{views} views: config.json names with_views");
-                assert_eq!(applied.len(), [0, 2, 2, 3, 3][[3, 6, 8, 9, 49].iter().position(|&v| v == views).unwrap()]);
-                (views, c.field.sh_degree, c.train.iters)
-            })
-            .collect();
-        assert_eq!(runs, [(3, 3, 800), (6, 1, 2400), (8, 1, 2400), (9, 2, 2400), (49, 2, 2400)]);
+        for (views, applied, sh_degree, iters) in [(3, 0, 3, 800), (6, 2, 1, 2400), (8, 2, 1, 2400), (9, 3, 2, 2400), (49, 3, 2, 2400)] {
+            let mut c = preset.clone();
+            assert_eq!(c.apply_with_views(views).unwrap().len(), applied, "{views} views");
+            assert_eq!((c.field.sh_degree, c.train.iters), (sh_degree, iters), "{views} views");
+            assert!(c.with_views.is_empty(), "{views} views: the tables stay in the config");
+            assert!(!c.to_json().contains("with_views"), "{views} views: config.json names with_views");
+        }
 
         let bad = RunConfig::from_text_for("[[with_views]]\nmin_views = 4\nset = [\"field.no_such=1\"]\n", true, "p", None).unwrap();
         let e = bad.clone().apply_with_views(5).unwrap_err().to_string();
@@ -785,6 +788,8 @@ mod tests {
             let c = RunConfig::from_text_for(text, true, "p", None).unwrap();
             let e = c.validate().unwrap_err();
             assert!(e.contains("[[with_views]]"), "{text}: {e}");
+            let e = c.clone().apply_with_views(9).unwrap_err().to_string();
+            assert!(e.contains("[[with_views]]"), "applied before validation, {text}: {e}");
         }
     }
 }
