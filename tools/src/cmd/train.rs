@@ -112,7 +112,8 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     // The preset's settings for more views, under every option of the command line.
     if !config.with_views.is_empty() {
-        let views = match args.input.views {
+        // `--views` is in `scene.views` by now, as is a config file's own.
+        let views = match config.scene.views {
             Some(k) => k,
             None => load_scene_cameras(&config)?.split.train.len(),
         };
