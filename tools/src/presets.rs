@@ -70,7 +70,7 @@ mod tests {
         let dtu = RunConfig::from_text_for(SPARSE_DTU.text, true, SPARSE_DTU.path, None).unwrap();
         for (views, sh, iters) in [(3, 0, 800), (8, 0, 800), (9, 2, 4800)] {
             let mut c = dtu.clone();
-            c.apply_with_views(views).unwrap();
+            c.apply_with_views(views, SPARSE_DTU.path).unwrap();
             c.resolve();
             c.validate().unwrap();
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");

@@ -435,9 +435,19 @@ fn with_views_tables_follow_the_view_count() {
     };
     let (t, rays, iters) = run("three", &["--views", "3"]);
     assert_eq!((rays, iters), (512, 2), "{t}");
-    assert!(t.contains("3 training views: the config's [[with_views]] sets train.rays_per_batch=512, train.iters=2"), "{t}");
+    let log = "views.toml sets train.rays_per_batch=512, train.iters=2";
+    assert!(t.contains("3 training views: [[with_views]] in ") && t.contains(log), "{t}");
     assert_eq!(run("two", &["--views", "2"]).1, 4096, "2 views are under min_views = 3");
     assert_eq!(run("all", &[]).1, 512, "every training view of the scene (more than 3)");
     let (_, rays, iters) = run("flags", &["--views", "3", "--iters", "1", "--set", "train.rays_per_batch=256"]);
     assert_eq!((rays, iters), (256, 1), "--iters and --set win over the tables");
+
+    // A wrong assignment in a table names the file and the table, before any run folder.
+    let bad = out.path().join("bad.toml");
+    std::fs::write(&bad, "[[with_views]]\nmin_views = 2\nset = [\"train.no_such_key=1\"]\n").unwrap();
+    let dir = out.path().join("bad-run");
+    let o = edgenerf(&["train", scene.to_str().unwrap(), "--config", bad.to_str().unwrap(), "--out", dir.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("bad.toml") && t.contains("min_views = 2") && t.contains("no_such_key"), "{t}");
+    assert!(!dir.exists(), "a refused config wrote {}", dir.display());
 }

@@ -416,15 +416,15 @@ impl RunConfig {
     /// Applies, in order, the `[[with_views]]` tables whose `min_views` a run of `views`
     /// training views reaches, then empties the list (a config that ran holds values, not
     /// rules). Returns the assignments applied, for the log. An assignment that names no
-    /// key or a wrong type is an error naming the table.
-    pub fn apply_with_views(&mut self, views: usize) -> Result<Vec<String>, TrainError> {
-        self.check_with_views().map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
+    /// key or a wrong type is an error naming `source` (the config file) and the table.
+    pub fn apply_with_views(&mut self, views: usize, source: &str) -> Result<Vec<String>, TrainError> {
+        self.check_with_views().map_err(|message| TrainError::Config { source_name: source.into(), message })?;
         let tables = std::mem::take(&mut self.with_views);
         let mut applied = Vec::new();
         for table in tables.iter().filter(|t| views >= t.min_views) {
             for assignment in &table.set {
                 self.set(assignment).map_err(|e| TrainError::Config {
-                    source_name: format!("[[with_views]] min_views = {}", table.min_views),
+                    source_name: format!("{source}, [[with_views]] min_views = {}", table.min_views),
                     message: e.to_string(),
                 })?;
                 applied.push(assignment.clone());
@@ -773,23 +773,23 @@ mod tests {
         assert_eq!(preset.with_views.len(), 2);
         for (views, applied, sh_degree, iters) in [(3, 0, 3, 800), (6, 2, 1, 2400), (8, 2, 1, 2400), (9, 3, 2, 2400), (49, 3, 2, 2400)] {
             let mut c = preset.clone();
-            assert_eq!(c.apply_with_views(views).unwrap().len(), applied, "{views} views");
+            assert_eq!(c.apply_with_views(views, "preset.toml").unwrap().len(), applied, "{views} views");
             assert_eq!((c.field.sh_degree, c.train.iters), (sh_degree, iters), "{views} views");
             assert!(c.with_views.is_empty(), "{views} views: the tables stay in the config");
             assert!(!c.to_json().contains("with_views"), "{views} views: config.json names with_views");
         }
 
         let bad = RunConfig::from_text_for("[[with_views]]\nmin_views = 4\nset = [\"field.no_such=1\"]\n", true, "p", None).unwrap();
-        let e = bad.clone().apply_with_views(5).unwrap_err().to_string();
-        assert!(e.contains("min_views = 4") && e.contains("field.no_such"), "{e}");
-        assert!(bad.clone().apply_with_views(3).unwrap().is_empty(), "a table under its view count is not read");
+        let e = bad.clone().apply_with_views(5, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("my.toml") && e.contains("min_views = 4") && e.contains("field.no_such"), "{e}");
+        assert!(bad.clone().apply_with_views(3, "my.toml").unwrap().is_empty(), "a table under its view count is not read");
 
         for text in ["[[with_views]]\nmin_views = 1\nset = [\"train.iters=5\"]\n", "[[with_views]]\nmin_views = 5\nset = []\n"] {
             let c = RunConfig::from_text_for(text, true, "p", None).unwrap();
             let e = c.validate().unwrap_err();
             assert!(e.contains("[[with_views]]"), "{text}: {e}");
-            let e = c.clone().apply_with_views(9).unwrap_err().to_string();
-            assert!(e.contains("[[with_views]]"), "applied before validation, {text}: {e}");
+            let e = c.clone().apply_with_views(9, "my.toml").unwrap_err().to_string();
+            assert!(e.contains("my.toml") && e.contains("[[with_views]]"), "applied before validation, {text}: {e}");
         }
     }
 }

@@ -97,10 +97,13 @@ pub struct Args {
 fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     // The backend first: its defaults (the MLP's RegNeRF optimizer) sit under the file.
     let backend = args.backend.as_deref().map(str::parse::<Backend>).transpose().map_err(anyhow::Error::msg)?;
-    let mut config = match (&args.config, default_preset(args, backend)?) {
-        (Some(path), _) => RunConfig::from_file_for(path, backend)?,
-        (None, Some(preset)) => RunConfig::from_text_for(preset.text, true, preset.path, backend)?,
-        (None, None) => RunConfig::defaults_for(backend.unwrap_or_default()),
+    // `source`: the file the config came from, named by the [[with_views]] messages.
+    let (mut config, source) = match (&args.config, default_preset(args, backend)?) {
+        (Some(path), _) => (RunConfig::from_file_for(path, backend)?, path.display().to_string()),
+        (None, Some(preset)) => {
+            (RunConfig::from_text_for(preset.text, true, preset.path, backend)?, preset.path.to_string())
+        }
+        (None, None) => (RunConfig::defaults_for(backend.unwrap_or_default()), "the engine defaults".to_string()),
     };
     // Absolute, so that `render`/`eval` of the checkpoint work from any directory.
     config.scene.path = absolute_scene(&args.input.scene)?;
@@ -117,9 +120,9 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
             Some(k) => k,
             None => load_scene_cameras(&config)?.split.train.len(),
         };
-        let applied = config.apply_with_views(views)?;
+        let applied = config.apply_with_views(views, &source)?;
         if !applied.is_empty() {
-            eprintln!("{views} training views: the config's [[with_views]] sets {}", applied.join(", "));
+            eprintln!("{views} training views: [[with_views]] in {source} sets {}", applied.join(", "));
         }
     }
     if let Some(iters) = args.iters {
