@@ -76,4 +76,25 @@ mod tests {
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
         }
     }
+
+    /// The LLFF preset's `[[with_views]]`: up to 13 views keep the 3-view batches of
+    /// 2x2 patches, colour up to band 3 and 2000 steps; from 14 views three quarters
+    /// of each batch are single pixels, the colour stops at band 1, the learning
+    /// rate is doubled and the run is 6000 steps with the decay stretched to them.
+    #[test]
+    fn llff_preset_follows_the_view_count() {
+        let llff = RunConfig::from_text_for(SPARSE_LLFF.text, true, SPARSE_LLFF.path, None).unwrap();
+        for (views, share, sh, iters, lr) in [(3, 1.0, 3, 2000, 0.01), (13, 1.0, 3, 2000, 0.01), (14, 0.25, 1, 6000, 0.02)] {
+            let mut c = llff.clone();
+            c.apply_with_views(views, SPARSE_LLFF.path).unwrap();
+            c.resolve();
+            c.validate().unwrap();
+            assert_eq!((c.train.patch_share, c.field.sh_degree, c.train.iters), (share, sh, iters), "{views} views");
+            let (lr_start, lr_end) = (c.optim.schedule.lr(100), c.optim.schedule.lr(iters));
+            assert!((lr_start - lr).abs() < 1e-6, "{views} views: lr {lr_start}");
+            // The preset's decay (0.7 at step 1200 and every 200 after, written for 2000
+            // steps) ends at 0.7^5 of the rate whatever the length.
+            assert!((lr_end / lr - 0.7f32.powi(5)).abs() < 1e-3, "{views} views: lr {lr_end} at the end");
+        }
+    }
 }
