@@ -63,16 +63,22 @@ mod tests {
         assert_eq!(object, small, "sparse-object.toml's tables from [field] on must be sparse-small.toml's");
     }
 
+    /// `preset` as `train --views VIEWS` runs it: its `[[with_views]]` tables applied,
+    /// resolved and valid.
+    fn preset_for_views(preset: Preset, views: usize) -> RunConfig {
+        let mut c = RunConfig::from_text_for(preset.text, true, preset.path, None).unwrap();
+        c.apply_with_views(views, preset.path).unwrap();
+        c.resolve();
+        c.validate().unwrap();
+        c
+    }
+
     /// The DTU preset's `[[with_views]]`: 3 views keep the view-independent colour and
     /// 800 steps; the protocol's 9 views get band-2 colour and 4800 steps.
     #[test]
     fn dtu_preset_follows_the_view_count() {
-        let dtu = RunConfig::from_text_for(SPARSE_DTU.text, true, SPARSE_DTU.path, None).unwrap();
         for (views, sh, iters) in [(3, 0, 800), (8, 0, 800), (9, 2, 4800)] {
-            let mut c = dtu.clone();
-            c.apply_with_views(views, SPARSE_DTU.path).unwrap();
-            c.resolve();
-            c.validate().unwrap();
+            let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
         }
     }
@@ -83,12 +89,8 @@ mod tests {
     /// rate is doubled and the run is 6000 steps with the decay stretched to them.
     #[test]
     fn llff_preset_follows_the_view_count() {
-        let llff = RunConfig::from_text_for(SPARSE_LLFF.text, true, SPARSE_LLFF.path, None).unwrap();
         for (views, share, sh, iters, lr) in [(3, 1.0, 3, 2000, 0.01), (13, 1.0, 3, 2000, 0.01), (14, 0.25, 1, 6000, 0.02)] {
-            let mut c = llff.clone();
-            c.apply_with_views(views, SPARSE_LLFF.path).unwrap();
-            c.resolve();
-            c.validate().unwrap();
+            let c = preset_for_views(SPARSE_LLFF, views);
             assert_eq!((c.train.patch_share, c.field.sh_degree, c.train.iters), (share, sh, iters), "{views} views");
             let (lr_start, lr_end) = (c.optim.schedule.lr(100), c.optim.schedule.lr(iters));
             assert!((lr_start - lr).abs() < 1e-6, "{views} views: lr {lr_start}");
