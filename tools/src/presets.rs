@@ -99,4 +99,22 @@ mod tests {
             assert!((lr_end / lr - 0.7f32.powi(5)).abs() < 1e-3, "{views} views: lr {lr_end} at the end");
         }
     }
+
+    /// The object preset's `[[with_views]]`: with 2 views 800 steps of 2x2 patches and
+    /// colour up to band 3; from 3 views 2400 steps, band 1, half of each batch single
+    /// pixels, and the decay (written for 800 steps) stretched to the run: it starts 3x
+    /// later and ends where the 800-step run's ends.
+    #[test]
+    fn object_preset_follows_the_view_count() {
+        let short = preset_for_views(SPARSE_OBJECT, 2);
+        assert_eq!((short.train.iters, short.field.sh_degree, short.train.patch_share), (800, 3, 1.0));
+        let long = preset_for_views(SPARSE_OBJECT, 3);
+        assert_eq!((long.train.iters, long.field.sh_degree, long.train.patch_share), (2400, 1, 0.5));
+        let (s, l) = (&short.optim.schedule, &long.optim.schedule);
+        assert!(s.lr(700) < s.lr(100), "the 800-step run decays from step 500");
+        assert_eq!(l.lr(1400), l.lr(100), "the 2400-step run keeps its rate until step 1500");
+        assert!((l.lr(2400) / l.lr(100) - s.lr(800) / s.lr(100)).abs() < 1e-6, "both runs end at the same fraction of the rate");
+        // The opacity penalty is the same at every view count.
+        assert_eq!((long.priors.sparsity, long.priors.sparsity_steps), (short.priors.sparsity, short.priors.sparsity_steps));
+    }
 }
