@@ -8,7 +8,7 @@
 //! a nerfstudio or COLMAP capture gets the preset of the layout it loads as
 //! (`data::bounds`): a forward-facing one is an LLFF scene (`sparse-llff.toml`), an
 //! object-centric one gets `sparse-object.toml` (`sparse-small.toml` with an opacity
-//! penalty for captures without alpha; docs/guide/presets.md,
+//! penalty for captures without alpha, and from 3 views a longer run; docs/guide/presets.md,
 //! docs/results/real-captures.md).
 
 use edgenerf::data::SceneFormat;
@@ -57,7 +57,8 @@ mod tests {
         }
         assert_eq!(sparse_preset(SceneFormat::Colmap, true).path, SPARSE_LLFF.path);
         assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_OBJECT.path);
-        // The object preset is sparse-small.toml with its opacity penalty before it.
+        // The object preset is sparse-small.toml with its opacity penalty and its
+        // [[with_views]] table before it.
         let small = SPARSE_SMALL.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
         let object = SPARSE_OBJECT.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
         assert_eq!(object, small, "sparse-object.toml's tables from [field] on must be sparse-small.toml's");
