@@ -23,7 +23,11 @@
 //! training reads back the photometric rays' `dL/d rgb` and opacity to form the map's
 //! gradient, `dL/d bg = (1 - opacity) dL/d rgb` (the forward writes
 //! `rgb = sum w c + (1 - opacity) bg`), through the sigmoid and the bilinear weights
-//! ([`LearnedBackground::step`], Adam on the host: a few hundred thousand values).
+//! ([`LearnedBackground::step`], on the host: a few hundred thousand values). The step
+//! is Adam's with a floor under its denominator, a tenth of the map's largest, so a
+//! texel with faint evidence moves in proportion to it; the prefit is a splat
+//! (weighted means, no overshoot). Both keep a texel that no ray sees unoccluded from
+//! drifting to a colour no view shows (docs/results/real-captures.md, "The background's texels").
 //!
 //! Direction to texture: `u = atan2(d.y, d.x) / 2 pi + 1/2` (wrapping), `v =
 //! acos(d.z) / pi` (clamped at the poles); texel centres at `(i + 1/2) / w`.
@@ -35,9 +39,11 @@
 //! finite distance then shows parallax between views, so a finer map can hold it
 //! without being each camera's own picture of the object.
 //!
-//! Invariants: [`LearnedBackground::colors`] is a pure function of the parameters and
-//! the directions; the gradient of [`LearnedBackground::step`] is the exact derivative
-//! of `sum_r <g_r, bg(d_r)>` (a finite-difference test checks it).
+//! Invariants: [`LearnedBackground::prefit`] leaves each texel of the coarsest map
+//! within the colours that reach it and the median (a test checks it);
+//! [`LearnedBackground::colors`] is a pure function of the parameters and the
+//! directions; the gradient of [`LearnedBackground::step`] is the exact derivative of
+//! `sum_r <g_r, bg(d_r)>` (a finite-difference test checks it).
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -115,6 +121,15 @@ impl LearnedBackgroundConfig {
 const BETA1: f32 = 0.9;
 const BETA2: f32 = 0.99;
 const EPS: f32 = 1e-8;
+/// [`LearnedBackground::step`]: the floor of Adam's denominator, relative to the map's
+/// largest (see there). Chosen on the val views of `creases`, `thin` and `turntable` on
+/// white and DTU scan 24 (docs/results/real-captures.md).
+const RELATIVE_FLOOR: f32 = 0.1;
+
+/// [`LearnedBackground::prefit`]: how many pixels' worth of weight the prior (the
+/// median colour, or no change for the finer maps) has in each texel's mean. A texel
+/// that a few directions graze with small bilinear weights stays near the prior.
+const PREFIT_PRIOR_WEIGHT: f64 = 1.0;
 
 /// Checkpoint tensor names.
 pub const LOGITS: &str = "background.logits";
@@ -266,48 +281,82 @@ impl LearnedBackground {
         self.t += 1;
         let lr = lr * self.config.lr_scale;
         let (b1t, b2t) = (1.0 - BETA1.powi(self.t as i32), 1.0 - BETA2.powi(self.t as i32));
+        let mut v_max = 0.0f32;
         for i in 0..self.logits.len() {
             self.m[i] = BETA1 * self.m[i] + (1.0 - BETA1) * grad[i];
             self.v[i] = BETA2 * self.v[i] + (1.0 - BETA2) * grad[i] * grad[i];
-            // Texels no ray has reached keep their value (no update from zero moments).
-            if self.v[i] > 0.0 {
-                self.logits[i] -= lr * (self.m[i] / b1t) / ((self.v[i] / b2t).sqrt() + EPS);
-            }
+            v_max = v_max.max(self.v[i]);
+        }
+        // Adam's denominator with a floor of [`RELATIVE_FLOOR`] times the map's largest
+        // one: per-value Adam turns the faint, one-sided gradient of a texel seen only
+        // through an almost opaque object ((1 - opacity) dL/d rgb) into full-size steps
+        // and walks it to black or white over a run (`creases` on white: a texel beside
+        // the floor went from 0.96 to 0.64 in training, and the views looking past the
+        // object there rendered it). Texels with at least a tenth of the best-seen
+        // texel's gradient still move at half Adam's rate or more; fainter ones in
+        // proportion to their evidence. Texels no ray has reached keep their value.
+        let floor = RELATIVE_FLOOR * (v_max / b2t).sqrt() + EPS;
+        for i in 0..self.logits.len() {
+            self.logits[i] -= lr / b1t * self.m[i] / ((self.v[i] / b2t).sqrt() + floor);
         }
     }
 
     /// Fits the map to colours seen in known directions before training: pixels that
     /// most likely show background (the trainer passes the frames of the training
-    /// images). Every value starts from the colour of median luminance in `colors`
-    /// (robust to the object reaching into some frames), then `iters` Adam steps of the mean
-    /// squared error shape it by direction; the optimizer state is reset afterwards, so
-    /// training starts its own. Without this, a capture whose backdrop is uniform (white
-    /// paper, a composited background) fits it with fog from the first steps and the
-    /// background never learns it: docs/results/real-captures.md.
-    pub fn prefit(&mut self, dirs: &[[f32; 3]], colors: &[[f32; 3]], iters: u32) {
+    /// images). Without this, a capture whose backdrop is uniform (white paper, a
+    /// composited background) fits it with fog from the first steps and the background
+    /// never learns it: docs/results/real-captures.md.
+    ///
+    /// The fit is a splat, coarsest map first, in logit space (colours clamped to
+    /// `[0.02, 0.98]`): each texel takes the bilinear-weighted mean of what the
+    /// directions reaching it still miss (the target's logit less the coarser maps'
+    /// sum), shrunk toward the colour of median luminance (the coarsest map) or toward 0
+    /// (the finer maps) with the weight of [`PREFIT_PRIOR_WEIGHT`] pixels. Every value is
+    /// a weighted mean of what was seen, so one map's texel lies within the range of the
+    /// colours reaching it: a texel at the edge of what the frames show cannot overshoot
+    /// to black to fit a sharp edge, as a least-squares fit does (a frame that shows the
+    /// floor under the object beside white sky, `creases` on white: one texel went
+    /// black, and every view looking past the object there rendered black instead of
+    /// white). Texels no direction reaches keep the median colour (robust to the object
+    /// reaching into some frames). The optimizer state is reset, so training starts its
+    /// own.
+    pub fn prefit(&mut self, dirs: &[[f32; 3]], colors: &[[f32; 3]]) {
         if dirs.is_empty() {
             return;
         }
+        let to_logit = |c: f32| {
+            let c = c.clamp(0.02, 0.98);
+            (c / (1.0 - c)).ln()
+        };
         // The colour of median luminance: a colour of the frames (a per-channel median of
         // black and white frames could be red).
         let luminance = |c: &[f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
         let mut order: Vec<&[f32; 3]> = colors.iter().collect();
         order.sort_by(|a, b| luminance(a).total_cmp(&luminance(b)));
-        let init = order[order.len() / 2].map(|m| {
-            let m = m.clamp(0.02, 0.98);
-            (m / (1.0 - m)).ln()
-        });
-        let (_, h0, w0) = self.maps[0];
+        let median = order[order.len() / 2].map(to_logit);
+        let targets: Vec<[f32; 3]> = colors.iter().map(|c| c.map(to_logit)).collect();
         self.logits.fill(0.0);
-        for texel in self.logits[..3 * h0 * w0].chunks_mut(3) {
-            texel.copy_from_slice(&init);
-        }
-        let lr = 0.05 / self.config.lr_scale.max(1e-6);
-        for _ in 0..iters {
-            let c = self.colors(dirs);
-            let n = dirs.len() as f32;
-            let g: Vec<[f32; 3]> = c.iter().zip(colors).map(|(c, t)| std::array::from_fn(|k| 2.0 * (c[k] - t[k]) / n)).collect();
-            self.step(dirs, &g, &vec![0.0; dirs.len()], lr);
+        for level in 0..self.maps.len() {
+            let (off, h, w) = self.maps[level];
+            let prior = if level == 0 { median } else { [0.0; 3] };
+            let mut sum = vec![0.0f64; 3 * h * w];
+            let mut weight = vec![0.0f64; h * w];
+            for (&d, t) in dirs.iter().zip(&targets) {
+                // What the coarser maps leave (they are final; this map is still 0).
+                let have = self.logit(d);
+                for (texel, wt) in taps(d, h, w) {
+                    weight[texel] += wt as f64;
+                    for k in 0..3 {
+                        sum[3 * texel + k] += wt as f64 * (t[k] - have[k]) as f64;
+                    }
+                }
+            }
+            for texel in 0..h * w {
+                let n = weight[texel] + PREFIT_PRIOR_WEIGHT;
+                for k in 0..3 {
+                    self.logits[3 * (off + texel) + k] = ((sum[3 * texel + k] + PREFIT_PRIOR_WEIGHT * prior[k] as f64) / n) as f32;
+                }
+            }
         }
         self.m.fill(0.0);
         self.v.fill(0.0);
@@ -424,7 +473,7 @@ mod tests {
         let mut bg = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         let d = dirs();
         let target = [1.0, 1.0, 1.0];
-        for _ in 0..300 {
+        for _ in 0..600 {
             let c = bg.colors(&d);
             // d/d rgb of the mean squared error with opacity 0: the background is the colour.
             let g: Vec<[f32; 3]> = c.iter().map(|c| std::array::from_fn(|k| 2.0 * (c[k] - target[k]))).collect();
@@ -437,6 +486,25 @@ mod tests {
         let mut opaque = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
         opaque.step(&d, &vec![[1.0; 3]; d.len()], &vec![1.0; d.len()], 0.05);
         assert!(opaque.colors(&d).iter().all(|c| c.iter().all(|&x| (x - 0.5).abs() < 1e-6)));
+    }
+
+    /// A texel that only ever gets a faint, one-sided gradient (a direction seen only
+    /// through an almost opaque object) hardly moves, while a well-seen one moves at
+    /// Adam's rate: per-value Adam would walk both the same distance.
+    #[test]
+    fn faint_gradients_move_the_map_in_proportion() {
+        let mut bg = LearnedBackground::new(LearnedBackgroundConfig::default(), UNIT_BOX);
+        // Texel centres of the 4 x 8 map, two rows and four columns apart.
+        let (seen, faint) = ([1.0, 0.0, 0.3], [-1.0, 0.0, -0.3]);
+        let before = bg.colors(&[seen, faint]);
+        for _ in 0..200 {
+            // The same dL/d rgb; the faint ray is 99.9 % opaque.
+            bg.step(&[seen, faint], &[[-0.01; 3], [-0.01; 3]], &[0.0, 0.999], 0.01);
+        }
+        let after = bg.colors(&[seen, faint]);
+        let moved = |k: usize| after[k][0] - before[k][0];
+        assert!(moved(0) > 0.3, "the well-seen texel moved {}", moved(0));
+        assert!(moved(1).abs() < 0.03 * moved(0), "the faint texel moved {} against {}", moved(1), moved(0));
     }
 
     #[test]
@@ -453,13 +521,62 @@ mod tests {
         }
         dirs.push([1.0, 0.0, 0.0]);
         colors.push([1.0, 0.0, 0.0]);
-        bg.prefit(&dirs, &colors, 300);
-        // Probed where the frames were seen, away from the odd colour (whose saturated
-        // target drives its texels' values without bound, and their bilinear
-        // neighbours' the other way).
+        bg.m.fill(0.5);
+        bg.prefit(&dirs, &colors);
         let c = bg.colors(&[[-1.0, 0.05, 0.9], [-1.0, -0.05, -0.9]]);
         assert!(c[0].iter().all(|&x| x < 0.2) && c[1].iter().all(|&x| x > 0.8), "{c:?}");
         assert_eq!((bg.t, bg.m.iter().all(|&m| m == 0.0)), (0, true), "optimizer state reset");
+    }
+
+    /// Frames that show a sharp edge between two colours in the middle of a texel (a
+    /// floor's edge against white sky): every texel stays within the colours seen (a
+    /// least-squares fit drives the texel beside the edge past them, to black), texels
+    /// no frame reaches keep the median colour, and a finer map fits the edge closer.
+    #[test]
+    fn prefit_stays_within_the_colours_seen() {
+        let (white, grey) = (0.98f32, 0.6f32);
+        let (mut dirs, mut colors) = (Vec::new(), Vec::new());
+        // A band of directions around the horizon, azimuths 0 to 90 degrees: above 5
+        // degrees below the horizon white, under it grey (the floor), more of it white.
+        for i in 0..60 {
+            for j in 0..40 {
+                let (az, el) = ((i as f32 * 1.5).to_radians(), (-30.0 + j as f32 * 1.5).to_radians());
+                dirs.push([az.cos() * el.cos(), az.sin() * el.cos(), el.sin()]);
+                colors.push([if el.to_degrees() > -5.0 { white } else { grey }; 3]);
+            }
+        }
+        let fit_error = |bg: &LearnedBackground| -> f32 {
+            bg.colors(&dirs).iter().zip(&colors).map(|(c, t)| (c[0] - t[0]).abs()).sum::<f32>() / dirs.len() as f32
+        };
+        let mut errors = Vec::new();
+        for (levels, finest_height) in [(1, 4), (2, 16)] {
+            let mut bg = LearnedBackground::new(LearnedBackgroundConfig { levels, finest_height, ..Default::default() }, UNIT_BOX);
+            bg.prefit(&dirs, &colors);
+            // Each map's texels (alone, through the sigmoid for the coarsest) and the
+            // rendered colour in every direction lie within the colours seen.
+            let (_, h0, w0) = bg.maps[0];
+            for x in &bg.logits[..3 * h0 * w0] {
+                let c = sigmoid(*x);
+                assert!((grey - 1e-3..=white + 1e-3).contains(&c), "coarsest texel {c} outside [{grey}, {white}]");
+            }
+            let everywhere: Vec<[f32; 3]> = (0..64 * 128)
+                .map(|i| {
+                    let (u, v) = ((i % 128) as f32 / 128.0, (i / 128) as f32 / 64.0 + 0.5 / 64.0);
+                    let (az, pol) = (u * std::f32::consts::TAU, v * std::f32::consts::PI);
+                    [az.cos() * pol.sin(), az.sin() * pol.sin(), pol.cos()]
+                })
+                .collect();
+            for c in bg.colors(&everywhere) {
+                assert!((grey - 0.02..=white + 0.01).contains(&c[0]), "levels {levels}: colour {} outside [{grey}, {white}]", c[0]);
+            }
+            // Opposite the band, level and downward: no frame reaches them; the median
+            // colour (white: most frames are) holds there.
+            for c in bg.colors(&[[-1.0, -1.0, 0.0], [-1.0, -1.0, -0.8]]) {
+                assert!((c[0] - white).abs() < 1e-3, "levels {levels}: unseen direction {}", c[0]);
+            }
+            errors.push(fit_error(&bg));
+        }
+        assert!(errors[1] < 0.7 * errors[0], "a finer map fits the edge closer: {errors:?}");
     }
 
     #[test]

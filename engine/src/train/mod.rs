@@ -323,10 +323,6 @@ struct InFlight {
     background_dirs: Option<Vec<[f32; 3]>>,
 }
 
-/// Adam steps of a fresh run's learned background on its training images' frames
-/// ([`crate::render::LearnedBackground::prefit`]).
-const BACKGROUND_PREFIT_STEPS: u32 = 300;
-
 impl Trainer {
     /// A new run on `scene` with `config` (the scene path in the config is informative);
     /// the edge masks are computed from `config.edges` when the regularizers need them.
@@ -347,7 +343,7 @@ impl Trainer {
         let mut model = Model::new(&gpu, &scene, config)?;
         if let Some(bg) = &mut model.background {
             let (rays, colors) = model::frame_pixels(&scene);
-            bg.prefit(&bg.ray_dirs(&rays), &colors, BACKGROUND_PREFIT_STEPS);
+            bg.prefit(&bg.ray_dirs(&rays), &colors);
         }
         Self::with_model(gpu, scene, model, masks)
     }
