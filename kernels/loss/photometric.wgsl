@@ -24,6 +24,15 @@ struct Params {
     // The opacity entropy's weight / (sum of ray weights): dL/d opacity of a ray adds
     // this times its weight times ln((1 - o) / o) (priors.opacity_entropy; 0: off).
     entropy: f32,
+    // The foreground opacity prior's weight / (sum of ray weights): dL/d opacity of a
+    // ray subtracts this times its weight times the gate
+    // 1 - exp(-|c* - background|^2 / (3 tol^2)), c* the target and background what the
+    // renderer put behind the ray (priors.foreground_opacity; 0: off).
+    foreground: f32,
+    // 1 / (3 tol^2) (priors.foreground_tolerance).
+    fg_gate_scale: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 // The entropy's gradient is taken at the opacity clamped to [this, 1 - this]: finite at
@@ -37,7 +46,8 @@ const ENTROPY_CLAMP: f32 = 1e-4;
 @group(0) @binding(3) var<storage, read_write> d_rays: array<RayOutput>;
 @group(0) @binding(4) var<storage, read_write> sq_error: array<f32>;
 // The renderer's per-ray side output and each target's alpha (1: opaque or none);
-// read only when params.recomposite is 1.
+// the side output is read when params.recomposite is 1 or params.foreground > 0, the
+// alpha when params.recomposite is 1.
 @group(0) @binding(5) var<storage, read> aux: array<RayAux>;
 @group(0) @binding(6) var<storage, read> alpha: array<f32>;
 
@@ -58,6 +68,10 @@ fn photometric(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     if (params.entropy > 0.0) {
         let o = clamp(rays[r].opacity, ENTROPY_CLAMP, 1.0 - ENTROPY_CLAMP);
         d.opacity += params.entropy * want.w * log((1.0 - o) / o);
+    }
+    if (params.foreground > 0.0) {
+        let m = want.xyz - aux[r].background;
+        d.opacity -= params.foreground * want.w * (1.0 - exp(-dot(m, m) * params.fg_gate_scale));
     }
     d.normal = vec3<f32>(0.0);
     d.depth = 0.0;

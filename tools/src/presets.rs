@@ -8,7 +8,8 @@
 //! a nerfstudio or COLMAP capture gets the preset of the layout it loads as
 //! (`data::bounds`): a forward-facing one is an LLFF scene (`sparse-llff.toml`), an
 //! object-centric one gets `sparse-object.toml` (`sparse-small.toml` with an opacity
-//! penalty for captures without alpha, and from 3 views a longer run; docs/guide/presets.md,
+//! penalty for captures without alpha, from 3 views a longer run and from 5 the
+//! foreground opacity prior; docs/guide/presets.md,
 //! docs/results/real-captures.md).
 
 use edgenerf::data::SceneFormat;
@@ -104,7 +105,8 @@ mod tests {
     /// The object preset's `[[with_views]]`: with 2 views 800 steps of 2x2 patches and
     /// colour up to band 3; from 3 views 2400 steps, band 1, half of each batch single
     /// pixels, and the decay (written for 800 steps) stretched to the run: it starts 3x
-    /// later and ends where the 800-step run's ends.
+    /// later and ends where the 800-step run's ends; from 5 views the foreground
+    /// opacity prior.
     #[test]
     fn object_preset_follows_the_view_count() {
         let short = preset_for_views(SPARSE_OBJECT, 2);
@@ -117,5 +119,9 @@ mod tests {
         assert!((l.lr(2400) / l.lr(100) - s.lr(800) / s.lr(100)).abs() < 1e-6, "both runs end at the same fraction of the rate");
         // The opacity penalty is the same at every view count.
         assert_eq!((long.priors.sparsity, long.priors.sparsity_steps), (short.priors.sparsity, short.priors.sparsity_steps));
+        // The foreground opacity prior from 5 views on (with 3 it made floaters opaque).
+        for (views, weight) in [(2, 0.0), (3, 0.0), (4, 0.0), (5, 0.01), (8, 0.01)] {
+            assert_eq!(preset_for_views(SPARSE_OBJECT, views).priors.foreground_opacity, weight, "{views} views");
+        }
     }
 }

@@ -85,11 +85,35 @@ pub struct PriorConfig {
     /// The first step of the opacity entropy: before it the field is still fog, which the
     /// entropy would make opaque.
     pub opacity_entropy_start: u64,
+    /// Weight of the foreground opacity prior (0: off): each photometric ray is pushed
+    /// toward opaque by `foreground_opacity * g * (1 - opacity)`, with the gate
+    /// `g = 1 - exp(-|c* - b|^2 / (3 tol^2))` of the target `c*` against the background
+    /// `b` the renderer puts behind the ray, over the whole run. A pixel the background
+    /// cannot show belongs to the object; against a known backdrop (a learned one, a
+    /// photograph's white) a translucent surface of a darker colour fits the training
+    /// views as well as an opaque one, and shows the backdrop through the object from
+    /// new views. Pixels that match the background are left alone. Applied through the
+    /// photometric loss's `dL/d opacity` (`loss::photometric`); its value is not logged.
+    pub foreground_opacity: f32,
+    /// The gate's colour tolerance `tol`, a per-channel RMS difference from the
+    /// background: a pixel this far off gets `1 - 1/e` of the weight.
+    pub foreground_tolerance: f32,
 }
 
 impl Default for PriorConfig {
     fn default() -> Self {
-        Self { distortion: 0.0, occlusion: 0.0, occlusion_range: 0.08, orientation: 0.0, sparsity: 0.0, sparsity_steps: 0, opacity_entropy: 0.0, opacity_entropy_start: 0 }
+        Self {
+            distortion: 0.0,
+            occlusion: 0.0,
+            occlusion_range: 0.08,
+            orientation: 0.0,
+            sparsity: 0.0,
+            sparsity_steps: 0,
+            opacity_entropy: 0.0,
+            opacity_entropy_start: 0,
+            foreground_opacity: 0.0,
+            foreground_tolerance: 0.1,
+        }
     }
 }
 
@@ -101,10 +125,15 @@ impl PriorConfig {
             ("priors.orientation", self.orientation),
             ("priors.sparsity", self.sparsity),
             ("priors.opacity_entropy", self.opacity_entropy),
+            ("priors.foreground_opacity", self.foreground_opacity),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
             }
+        }
+        let tol = self.foreground_tolerance;
+        if !(tol.is_finite() && tol > 0.0) {
+            return Err(format!("priors.foreground_tolerance must be a colour difference > 0, got {tol}"));
         }
         let f = self.occlusion_range;
         if !(f.is_finite() && f > 0.0 && f <= 1.0) {
@@ -234,5 +263,15 @@ mod tests {
         assert_eq!([entropy.opacity_entropy_at(299), entropy.opacity_entropy_at(300)], [0.0, 0.01]);
         assert_eq!(entropy.sparsity_at(100), 0.03);
         assert!(PriorConfig { opacity_entropy: f32::NAN, ..Default::default() }.validate().is_err());
+    }
+
+    #[test]
+    fn the_foreground_prior_needs_a_weight_and_a_positive_tolerance() {
+        assert!(PriorConfig { foreground_opacity: 0.01, ..Default::default() }.validate().is_ok());
+        assert!(PriorConfig { foreground_opacity: -0.01, ..Default::default() }.validate().is_err());
+        for tol in [0.0, -0.1, f32::INFINITY, f32::NAN] {
+            let err = PriorConfig { foreground_opacity: 0.01, foreground_tolerance: tol, ..Default::default() }.validate().unwrap_err();
+            assert!(err.contains("priors.foreground_tolerance"), "{err}");
+        }
     }
 }

@@ -394,14 +394,16 @@ impl Pipeline {
         }
         self.renderer.forward(enc, &bufs.batch, &bufs.field_out, &bufs.render_out, plan.step as u32)?;
         let rays_out = &bufs.render_out.rays;
-        let recomposite = self.random_background.as_ref().map(|(alpha, loaded_over)| Recomposite {
-            aux: &bufs.render_out.aux,
-            alpha,
-            loaded_over: *loaded_over,
-        });
+        let recomposite = self.random_background.as_ref().map(|(alpha, loaded_over)| Recomposite { alpha, loaded_over: *loaded_over });
         let priors = &model.config.priors;
-        let opacity = OpacityPriors { sparsity: priors.sparsity_at(plan.step), entropy: priors.opacity_entropy_at(plan.step) };
-        self.photometric.record(enc, rays_out, &self.targets, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
+        let opacity = OpacityPriors {
+            sparsity: priors.sparsity_at(plan.step),
+            entropy: priors.opacity_entropy_at(plan.step),
+            foreground: priors.foreground_opacity,
+            foreground_tolerance: priors.foreground_tolerance,
+        };
+        let aux = Some(&bufs.render_out.aux);
+        self.photometric.record(enc, rays_out, &self.targets, aux, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
