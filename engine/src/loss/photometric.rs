@@ -86,8 +86,7 @@ pub struct Photometric {
     kernel: std::sync::Arc<crate::gpu::Kernel>,
     /// Weighted squared error per ray (sum over channels) of the last launch.
     pub sq_error: GpuBuffer<f32>,
-    /// Bound in place of the recompositing inputs when there are none.
-    placeholder_aux: GpuBuffer<RayAux>,
+    /// Bound in place of the targets' alpha when there is no recompositing.
     placeholder_alpha: GpuBuffer<f32>,
 }
 
@@ -96,7 +95,6 @@ impl Photometric {
         Ok(Self {
             kernel: gpu.kernel(&SPEC)?,
             sq_error: GpuBuffer::zeros(gpu, "photometric error", max_rays as usize)?,
-            placeholder_aux: GpuBuffer::zeros(gpu, "photometric: no aux", 1)?,
             placeholder_alpha: GpuBuffer::zeros(gpu, "photometric: no alpha", 1)?,
         })
     }
@@ -114,7 +112,7 @@ impl Photometric {
         enc: &mut Encoder,
         rays: &GpuBuffer<RayOutput>,
         targets: &GpuBuffer<[f32; 4]>,
-        aux: Option<&GpuBuffer<RayAux>>,
+        aux: &GpuBuffer<RayAux>,
         recomposite: Option<&Recomposite>,
         d_rays: &GpuBuffer<RayOutput>,
         n: u32,
@@ -124,8 +122,7 @@ impl Photometric {
     ) {
         assert!(rays.len() >= n as usize && targets.len() >= n as usize && d_rays.len() >= n as usize);
         assert!(self.sq_error.len() >= n as usize, "photometric buffer for {} rays, batch of {n}", self.sq_error.len());
-        let needs_aux = recomposite.is_some() || opacity.foreground > 0.0;
-        assert!(!needs_aux || aux.is_some_and(|a| a.len() >= n as usize), "recompositing or the foreground opacity prior without the rays' side output");
+        assert!(aux.len() >= n as usize, "the rays' side output is shorter than the batch");
         if let Some(rc) = recomposite {
             assert!(rc.alpha.len() >= n as usize, "alpha shorter than the batch");
         }
@@ -142,7 +139,6 @@ impl Photometric {
             fg_gate_scale: if opacity.foreground > 0.0 { 1.0 / (3.0 * opacity.foreground_tolerance.powi(2)) } else { 0.0 },
             _pad: [0; 2],
         });
-        let aux = aux.unwrap_or(&self.placeholder_aux);
         let alpha = recomposite.map_or(&self.placeholder_alpha, |rc| rc.alpha);
         enc.dispatch_threads(
             &self.kernel,
@@ -192,11 +188,13 @@ mod tests {
             s / (3.0 * weight_sum as f64)
         };
         let loss = Photometric::new(&gpu, n).unwrap();
+        // The rays' side output: zero backgrounds, read by neither recompositing nor the foreground prior here.
+        let no_aux = GpuBuffer::<RayAux>::zeros(&gpu, "aux", n as usize).unwrap();
         let rays_buf = GpuBuffer::from_slice(&gpu, "rays", &rays).unwrap();
         let targets_buf = GpuBuffer::from_slice(&gpu, "targets", &targets).unwrap();
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", n as usize).unwrap();
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, None, &d, n, weight_sum, 1.0, OpacityPriors::default());
+        loss.record(&mut enc, &rays_buf, &targets_buf, &no_aux, None, &d, n, weight_sum, 1.0, OpacityPriors::default());
         enc.submit();
         let mse = loss.mse(&gpu, n as usize, weight_sum).unwrap();
         assert!((mse as f64 - loss_of(&rays)).abs() < 1e-6);
@@ -215,7 +213,7 @@ mod tests {
         }
         // The opacity penalty: lambda_sp w_r / sum w on each ray's opacity, nothing else changed.
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, None, &d, n, weight_sum, 1.0, OpacityPriors { sparsity: 0.5, ..Default::default() });
+        loss.record(&mut enc, &rays_buf, &targets_buf, &no_aux, None, &d, n, weight_sum, 1.0, OpacityPriors { sparsity: 0.5, ..Default::default() });
         enc.submit();
         let with = d.read(&gpu).unwrap();
         for r in 0..n as usize {
@@ -235,7 +233,7 @@ mod tests {
         let rays_o_buf = GpuBuffer::from_slice(&gpu, "rays with opacity", &rays_o).unwrap();
         let mut enc = gpu.encoder();
         let priors = OpacityPriors { sparsity: 0.5, entropy: lambda_h as f32, ..Default::default() };
-        loss.record(&mut enc, &rays_o_buf, &targets_buf, None, None, &d, n, weight_sum, 1.0, priors);
+        loss.record(&mut enc, &rays_o_buf, &targets_buf, &no_aux, None, &d, n, weight_sum, 1.0, priors);
         enc.submit();
         let with = d.read(&gpu).unwrap();
         for r in 0..n as usize {
@@ -282,7 +280,7 @@ mod tests {
         let d = GpuBuffer::<RayOutput>::zeros(&gpu, "d", 4).unwrap();
         let rc = Recomposite { alpha: &alpha_buf, loaded_over };
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, Some(&aux_buf), Some(&rc), &d, 4, 4.0, 1.0, OpacityPriors::default());
+        loss.record(&mut enc, &rays_buf, &targets_buf, &aux_buf, Some(&rc), &d, 4, 4.0, 1.0, OpacityPriors::default());
         enc.submit();
         let grads = d.read(&gpu).unwrap();
         let mut sq = 0.0f64;
@@ -298,7 +296,7 @@ mod tests {
         assert!((mse as f64 - sq / 12.0).abs() < 1e-6, "{mse} vs {}", sq / 12.0);
         // Without recompositing the same call scores the targets as given.
         let mut enc = gpu.encoder();
-        loss.record(&mut enc, &rays_buf, &targets_buf, None, None, &d, 4, 4.0, 1.0, OpacityPriors::default());
+        loss.record(&mut enc, &rays_buf, &targets_buf, &aux_buf, None, &d, 4, 4.0, 1.0, OpacityPriors::default());
         enc.submit();
         assert!((d.read(&gpu).unwrap()[0].rgb[0] - 2.0 * (rays[0].rgb[0] - 0.8) / 12.0).abs() < 1e-6);
     }
@@ -334,7 +332,7 @@ mod tests {
         let priors = OpacityPriors { foreground: lambda, foreground_tolerance: tol, ..Default::default() };
         let run = |recomposite: Option<&Recomposite>, priors: OpacityPriors| {
             let mut enc = gpu.encoder();
-            loss.record(&mut enc, &rays_buf, &targets_buf, Some(&aux_buf), recomposite, &d, n, weight_sum, 1.0, priors);
+            loss.record(&mut enc, &rays_buf, &targets_buf, &aux_buf, recomposite, &d, n, weight_sum, 1.0, priors);
             enc.submit();
             d.read(&gpu).unwrap()
         };

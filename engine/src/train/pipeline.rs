@@ -402,8 +402,7 @@ impl Pipeline {
             foreground: priors.foreground_opacity,
             foreground_tolerance: priors.foreground_tolerance,
         };
-        let aux = Some(&bufs.render_out.aux);
-        self.photometric.record(enc, rays_out, &self.targets, aux, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
+        self.photometric.record(enc, rays_out, &self.targets, &bufs.render_out.aux, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {
