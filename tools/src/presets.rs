@@ -75,14 +75,17 @@ mod tests {
         c
     }
 
-    /// The DTU preset's `[[with_views]]`: 3 views keep the view-independent colour and
-    /// 800 steps; the protocol's 9 views get band-2 colour and 4800 steps. The
-    /// foreground opacity prior is on at every view count (unlike the object preset's).
+    /// The DTU preset's `[[with_views]]`: 3 views keep the view-independent colour,
+    /// 800 steps and the visibility pass's opacity floor of 0.01; the protocol's 9 views
+    /// get band-2 colour, 4800 steps and a floor of 0.02. The foreground opacity prior
+    /// is on at every view count (unlike the object preset's).
     #[test]
     fn dtu_preset_follows_the_view_count() {
-        for (views, sh, iters) in [(3, 0, 800), (8, 0, 800), (9, 2, 4800)] {
+        for (views, sh, iters, min_alpha) in [(3, 0, 800, 0.01), (8, 0, 800, 0.01), (9, 2, 4800, 0.02)] {
             let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
+            assert_eq!(c.sampler.visibility.min_alpha, min_alpha, "{views} views");
+            assert!(c.sampler.visibility.train, "{views} views");
             assert_eq!(c.priors.foreground_opacity, 0.01, "{views} views");
         }
     }
