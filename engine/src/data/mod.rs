@@ -239,6 +239,18 @@ impl Scene {
         self.format.is_dtu()
     }
 
+    /// Whether every training camera stands inside the scene box (an inside-out capture:
+    /// a room seen from within); false for NDC scenes and scenes without training views.
+    pub fn cameras_inside_box(&self) -> bool {
+        let [lo, hi] = self.aabb;
+        self.ndc.is_none()
+            && !self.split.train.is_empty()
+            && self.train_views().all(|v| {
+                let o = v.camera.origin();
+                o.cmpge(lo).all() && o.cmple(hi).all()
+            })
+    }
+
     /// Indices of the training views.
     pub fn train_views(&self) -> impl Iterator<Item = &View> {
         self.split.train.iter().map(|&i| &self.views[i])

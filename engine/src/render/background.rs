@@ -72,11 +72,27 @@ pub struct LearnedBackgroundConfig {
     /// sphere ([`LearnedBackground::lookup_dir`]): a backdrop at a finite distance, with
     /// parallax between views (NeRF++'s outer sphere, as one textured shell).
     pub shell_radius: f32,
+    /// The shell's shape (with `shell_radius` > 0): `sphere` (the default), or `box`:
+    /// the scene box scaled by `shell_radius` (1 or more) about its centre, read by the
+    /// direction from the centre to where the ray leaves that box. For captures whose
+    /// box is bounded by what the photos show behind everything (a room's walls and
+    /// floor): the map is then a texture on those surfaces, at the right distance from
+    /// every camera, including cameras inside the box.
+    pub shell_shape: ShellShape,
+}
+
+/// [`LearnedBackgroundConfig::shell_shape`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShellShape {
+    #[default]
+    Sphere,
+    Box,
 }
 
 impl Default for LearnedBackgroundConfig {
     fn default() -> Self {
-        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5, shell_radius: 0.0 }
+        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5, shell_radius: 0.0, shell_shape: ShellShape::Sphere }
     }
 }
 
@@ -95,11 +111,20 @@ impl LearnedBackgroundConfig {
         if !(self.lr_scale.is_finite() && self.lr_scale >= 0.0) {
             return Err(format!("render.learned_background.lr_scale = {} must be finite and >= 0", self.lr_scale));
         }
-        if !(self.shell_radius == 0.0 || (self.shell_radius > 1.0 && self.shell_radius <= 1000.0)) {
-            return Err(format!(
-                "render.learned_background.shell_radius = {}: 0 (at infinity) or above 1 (outside the box), at most 1000",
-                self.shell_radius
-            ));
+        match self.shell_shape {
+            ShellShape::Sphere if !(self.shell_radius == 0.0 || (self.shell_radius > 1.0 && self.shell_radius <= 1000.0)) => {
+                return Err(format!(
+                    "render.learned_background.shell_radius = {}: 0 (at infinity) or above 1 (outside the box), at most 1000",
+                    self.shell_radius
+                ));
+            }
+            ShellShape::Box if !(self.shell_radius >= 1.0 && self.shell_radius <= 1000.0) => {
+                return Err(format!(
+                    "render.learned_background.shell_radius = {} with shell_shape = \"box\": the box's scale about its centre, 1 (the scene box itself) to 1000",
+                    self.shell_radius
+                ));
+            }
+            _ => {}
         }
         if !(self.init > 0.0 && self.init < 1.0) {
             return Err(format!("render.learned_background.init = {} must lie in (0, 1)", self.init));
@@ -149,8 +174,8 @@ const ADAM_T: &str = "background.adam_t";
 #[derive(Clone, Debug)]
 pub struct LearnedBackground {
     config: LearnedBackgroundConfig,
-    /// The shell's centre and radius in the field's space (`config.shell_radius` > 0).
-    shell: Option<(Vec3, f32)>,
+    /// The shell in the field's space (`config.shell_radius` > 0).
+    shell: Option<Shell>,
     /// Per map: offset of its first texel (RGB triples) in `logits`, height, width.
     maps: Vec<(usize, usize, usize)>,
     /// Pre-sigmoid values, 3 per texel, the maps one after the other (row-major, `v`
@@ -159,6 +184,15 @@ pub struct LearnedBackground {
     m: Vec<f32>,
     v: Vec<f32>,
     t: u32,
+}
+
+/// Where [`LearnedBackground`]'s map lies, in the field's space.
+#[derive(Clone, Copy, Debug)]
+enum Shell {
+    /// A sphere: centre and radius.
+    Sphere(Vec3, f32),
+    /// A box: centre and half extents.
+    Box(Vec3, Vec3),
 }
 
 /// The texels and bilinear weights of one direction in one map.
@@ -183,6 +217,25 @@ fn taps(d: [f32; 3], h: usize, w: usize) -> [(usize, f32); 4] {
     ]
 }
 
+/// Where the ray `o + t d` (`o` relative to the box's centre) leaves the box of half
+/// extents `half`, if it crosses it ahead of `o` (`t > 0`).
+fn box_exit(o: Vec3, d: Vec3, half: Vec3) -> Option<Vec3> {
+    let (mut t_in, mut t_out) = (f32::NEG_INFINITY, f32::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            // Parallel to this slab: inside it throughout, or never.
+            if o[k].abs() > half[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((-half[k] - o[k]) / d[k], (half[k] - o[k]) / d[k]);
+        t_in = t_in.max(a.min(b));
+        t_out = t_out.min(a.max(b));
+    }
+    (t_out.is_finite() && t_out > 0.0 && t_in <= t_out).then(|| o + t_out * d)
+}
+
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
@@ -203,16 +256,26 @@ impl LearnedBackground {
         let (_, h0, w0) = maps[0];
         logits[..3 * h0 * w0].fill(init);
         let [lo, hi] = aabb;
-        let shell = (config.shell_radius > 0.0).then(|| ((lo + hi) * 0.5, config.shell_radius * (hi - lo).length() * 0.5));
+        let centre = (lo + hi) * 0.5;
+        let shell = (config.shell_radius > 0.0).then(|| match config.shell_shape {
+            ShellShape::Sphere => Shell::Sphere(centre, config.shell_radius * (hi - lo).length() * 0.5),
+            ShellShape::Box => Shell::Box(centre, config.shell_radius * (hi - lo) * 0.5),
+        });
         Self { config, shell, maps, logits, m: vec![0.0; 3 * n], v: vec![0.0; 3 * n], t: 0 }
     }
 
     /// The direction the map is read in for the ray `origin + t dir`: `dir` for a map
     /// at infinity; for a shell, the direction from its centre to the point where the
     /// ray leaves the sphere (the larger root of `|o + t d - c| = R`), or `dir` for a ray
-    /// that misses it (an origin outside the shell, looking away).
+    /// that misses it (an origin outside the shell, looking away). A box shell: the
+    /// direction from its centre to where the ray leaves the box (the nearest of the
+    /// far crossings of its three slabs), or `dir` for a ray that misses it.
     pub fn lookup_dir(&self, origin: [f32; 3], dir: [f32; 3]) -> [f32; 3] {
-        let Some((c, r)) = self.shell else { return dir };
+        let (c, r) = match self.shell {
+            None => return dir,
+            Some(Shell::Sphere(c, r)) => (c, r),
+            Some(Shell::Box(c, half)) => return box_exit(Vec3::from(origin) - c, Vec3::from(dir), half).map_or(dir, |p| p.to_array()),
+        };
         let (o, d) = (Vec3::from(origin) - c, Vec3::from(dir));
         let (a, b, cc) = (d.dot(d), o.dot(d), o.dot(o) - r * r);
         let disc = b * b - a * cc;
@@ -494,6 +557,36 @@ mod tests {
         assert!((p[1] / p[2] - 0.75).abs() < 1e-5 && p[0].abs() < 1e-5);
         // Outside the shell and looking away: the ray's direction.
         assert_eq!(shell.lookup_dir([20.0, 2.0, 0.0], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0]);
+    }
+
+    /// A box shell is read by the direction from the box's centre to where the ray
+    /// leaves the (scaled) box, from inside it (a room's cameras) and from outside.
+    #[test]
+    fn box_shell_lookup_is_where_the_ray_leaves_the_box() {
+        let aabb = [Vec3::new(-2.0, -2.0, 0.0), Vec3::new(2.0, 2.0, 2.0)];
+        let config = |r| LearnedBackgroundConfig { shell_radius: r, shell_shape: ShellShape::Box, ..Default::default() };
+        let room = LearnedBackground::new(config(1.0), aabb);
+        // The centre is (0, 0, 1). From a camera inside, looking at the +x wall.
+        assert_eq!(room.lookup_dir([1.0, 0.5, 1.5], [1.0, 0.0, 0.0]), [2.0, 0.5, 0.5]);
+        // Looking down at the floor at 45 degrees: leaves through z = 0 at x = 0.5.
+        let p = room.lookup_dir([-1.0, 0.0, 1.5], [1.0, 0.0, -1.0]);
+        assert!((Vec3::from(p) - Vec3::new(0.5, 0.0, -1.0)).length() < 1e-5, "{p:?}");
+        // Into a corner: the nearer of the two walls.
+        let p = room.lookup_dir([0.0, 0.0, 1.0], [1.0, 2.0, 0.0]);
+        assert!((Vec3::from(p) - Vec3::new(1.0, 2.0, 0.0)).length() < 1e-5, "{p:?}");
+        // From outside, through the box: where it comes out on the far side.
+        let p = room.lookup_dir([-5.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+        assert!((Vec3::from(p) - Vec3::new(2.0, 0.0, 0.0)).length() < 1e-5, "{p:?}");
+        // A box twice the size.
+        let p = LearnedBackground::new(config(2.0), aabb).lookup_dir([0.0, 0.0, 1.0], [0.0, -1.0, 0.0]);
+        assert!((Vec3::from(p) - Vec3::new(0.0, -4.0, 0.0)).length() < 1e-5, "{p:?}");
+        // Missing the box, or leaving it behind: the ray's direction.
+        assert_eq!(room.lookup_dir([-5.0, 3.0, 1.0], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0]);
+        assert_eq!(room.lookup_dir([5.0, 0.0, 1.0], [1.0, 0.2, 0.0]), [1.0, 0.2, 0.0]);
+        // Validation: a box shell needs a scale of 1 or more, a sphere more than 1.
+        assert!(config(1.0).validate().is_ok() && config(0.0).validate().is_err() && config(0.5).validate().is_err());
+        let sphere = LearnedBackgroundConfig { shell_radius: 1.0, ..Default::default() };
+        assert!(sphere.validate().is_err());
     }
 
     fn trained_map() -> LearnedBackground {

@@ -266,6 +266,12 @@ pub struct RunConfig {
     /// config that ran (`config.json`, checkpoints), which holds the values applied.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub with_views: Vec<WithViews>,
+    /// Settings for inside-out captures (`[with_cameras_inside]` of a preset): applied by
+    /// [`RunConfig::apply_with_cameras_inside`] where every training camera stands inside
+    /// the scene box (a room seen from within), before the command line's options; absent
+    /// in a config that ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub with_cameras_inside: Option<WithCamerasInside>,
 }
 
 /// Assignments (as `--set key=value`) for runs with at least `min_views` training
@@ -275,6 +281,16 @@ pub struct RunConfig {
 #[serde(deny_unknown_fields)]
 pub struct WithViews {
     pub min_views: usize,
+    pub set: Vec<String>,
+}
+
+/// Assignments (as `--set key=value`) for inside-out captures, whose training cameras
+/// all stand inside the scene box ([`crate::data::Scene::cameras_inside_box`]): there the
+/// box holds everything the photos show, so its faces are what lies behind everything
+/// (a room's walls and floor).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WithCamerasInside {
     pub set: Vec<String>,
 }
 
@@ -433,14 +449,35 @@ impl RunConfig {
         Ok(applied)
     }
 
+    /// Applies `[with_cameras_inside]` where `inside` (the scene's training cameras all
+    /// stand inside its box), then removes the table. Returns the assignments applied.
+    pub fn apply_with_cameras_inside(&mut self, inside: bool, source: &str) -> Result<Vec<String>, TrainError> {
+        self.check_with_views().map_err(|message| TrainError::Config { source_name: source.into(), message })?;
+        let Some(table) = self.with_cameras_inside.take() else { return Ok(Vec::new()) };
+        if !inside {
+            return Ok(Vec::new());
+        }
+        for assignment in &table.set {
+            self.set(assignment).map_err(|e| TrainError::Config {
+                source_name: format!("{source}, [with_cameras_inside]"),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(table.set)
+    }
+
     /// A `[[with_views]]` table that could never apply (`min_views` under 2) or sets
-    /// nothing is an error, whether the tables are validated or applied first.
+    /// nothing, or a `[with_cameras_inside]` that sets nothing, is an error, whether the
+    /// tables are validated or applied first.
     fn check_with_views(&self) -> Result<(), String> {
         match self.with_views.iter().find(|t| t.min_views < 2 || t.set.is_empty()) {
             Some(t) => Err(format!(
                 "[[with_views]] min_views = {}: needs min_views of at least 2 and at least one assignment in set",
                 t.min_views
             )),
+            None if self.with_cameras_inside.as_ref().is_some_and(|t| t.set.is_empty()) => {
+                Err("[with_cameras_inside]: needs at least one assignment in set".into())
+            }
             None => Ok(()),
         }
     }
@@ -791,5 +828,26 @@ mod tests {
             let e = c.clone().apply_with_views(9, "my.toml").unwrap_err().to_string();
             assert!(e.contains("my.toml") && e.contains("[[with_views]]"), "applied before validation, {text}: {e}");
         }
+    }
+
+    /// `[with_cameras_inside]` applies only to an inside-out capture, is gone from the
+    /// config after (either way), names its file in errors and must set something.
+    #[test]
+    fn with_cameras_inside_applies_only_where_the_cameras_are_inside() {
+        let text = "[train]\niters = 800\n\n[with_cameras_inside]\nset = [\"priors.sparsity=0.01\", \"train.iters=900\"]\n";
+        let preset = RunConfig::from_text_for(text, true, "preset.toml", None).unwrap();
+        for (inside, sparsity, iters) in [(false, 0.0, 800), (true, 0.01, 900)] {
+            let mut c = preset.clone();
+            let applied = c.apply_with_cameras_inside(inside, "preset.toml").unwrap();
+            assert_eq!(applied.len(), if inside { 2 } else { 0 });
+            assert_eq!((c.priors.sparsity, c.train.iters), (sparsity, iters), "inside: {inside}");
+            assert!(c.with_cameras_inside.is_none() && !c.to_json().contains("with_cameras_inside"), "inside: {inside}");
+        }
+        let bad = RunConfig::from_text_for("[with_cameras_inside]\nset = [\"field.no_such=1\"]\n", true, "p", None).unwrap();
+        let e = bad.clone().apply_with_cameras_inside(true, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("my.toml") && e.contains("[with_cameras_inside]") && e.contains("field.no_such"), "{e}");
+        let empty = RunConfig::from_text_for("[with_cameras_inside]\nset = []\n", true, "p", None).unwrap();
+        assert!(empty.validate().unwrap_err().contains("[with_cameras_inside]"));
+        assert!(empty.clone().apply_with_cameras_inside(false, "my.toml").is_err(), "checked whether it applies or not");
     }
 }

@@ -507,6 +507,17 @@ mod tests {
     use super::seen_by_training_cameras;
     use crate::data::{LoadOptions, Scene};
 
+    /// `room`'s cameras stand inside its box (an inside-out capture); the forward and
+    /// object scenes' stand outside theirs.
+    #[test]
+    fn inside_out_captures_are_those_whose_cameras_stand_in_the_box() {
+        for (name, inside) in [("room", true), ("table", false), ("occlusion", false), ("turntable", false)] {
+            let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small").join(name);
+            let scene = Scene::load(dir, &LoadOptions { views: Some(3), load_images: false, ..Default::default() }).unwrap();
+            assert_eq!(scene.cameras_inside_box(), inside, "{name}");
+        }
+    }
+
     #[test]
     fn seen_cells_are_those_a_training_camera_images() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../synthetic-scenes/small/occlusion");

@@ -113,7 +113,15 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     if args.input.llff_factor.is_some() {
         config.scene.llff_factor = args.input.llff_factor;
     }
-    // The preset's settings for more views, under every option of the command line.
+    // The preset's settings for more views and for inside-out captures, under every
+    // option of the command line.
+    if config.with_cameras_inside.is_some() {
+        let inside = load_scene_cameras(&config)?.cameras_inside_box();
+        let applied = config.apply_with_cameras_inside(inside, &source)?;
+        if !applied.is_empty() {
+            eprintln!("every training camera stands inside the scene box: [with_cameras_inside] in {source} sets {}", applied.join(", "));
+        }
+    }
     if !config.with_views.is_empty() {
         // `--views` is in `scene.views` by now, as is a config file's own.
         let views = match config.scene.views {
@@ -549,7 +557,9 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         let c = bg.config();
         eprintln!(
             "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour {} (finest map {}x{} texels, fitted first to the images' frames; render.background = {{kind = \"black\"}} for none)",
-            if c.shell_radius > 0.0 {
+            if c.shell_radius > 0.0 && c.shell_shape == edgenerf::render::ShellShape::Box {
+                format!("where they leave the scene box{}", if c.shell_radius == 1.0 { String::new() } else { format!(" scaled by {}", c.shell_radius) })
+            } else if c.shell_radius > 0.0 {
                 format!("where they cross a sphere {} box half-diagonals from its centre", c.shell_radius)
             } else {
                 "per direction".to_string()
