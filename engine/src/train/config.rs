@@ -438,13 +438,8 @@ impl RunConfig {
         let tables = std::mem::take(&mut self.with_views);
         let mut applied = Vec::new();
         for table in tables.iter().filter(|t| views >= t.min_views) {
-            for assignment in &table.set {
-                self.set(assignment).map_err(|e| TrainError::Config {
-                    source_name: format!("{source}, [[with_views]] min_views = {}", table.min_views),
-                    message: e.to_string(),
-                })?;
-                applied.push(assignment.clone());
-            }
+            self.apply_assignments(&table.set, &format!("{source}, [[with_views]] min_views = {}", table.min_views))?;
+            applied.extend(table.set.iter().cloned());
         }
         Ok(applied)
     }
@@ -457,13 +452,17 @@ impl RunConfig {
         if !inside {
             return Ok(Vec::new());
         }
-        for assignment in &table.set {
-            self.set(assignment).map_err(|e| TrainError::Config {
-                source_name: format!("{source}, [with_cameras_inside]"),
-                message: e.to_string(),
-            })?;
-        }
+        self.apply_assignments(&table.set, &format!("{source}, [with_cameras_inside]"))?;
         Ok(table.set)
+    }
+
+    /// A preset table's assignments, each as `--set` would; an error names `table`
+    /// (the file and the table).
+    fn apply_assignments(&mut self, set: &[String], table: &str) -> Result<(), TrainError> {
+        for assignment in set {
+            self.set(assignment).map_err(|e| TrainError::Config { source_name: table.into(), message: e.to_string() })?;
+        }
+        Ok(())
     }
 
     /// A `[[with_views]]` table that could never apply (`min_views` under 2) or sets

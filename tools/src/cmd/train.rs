@@ -115,18 +115,21 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     // The preset's settings for more views and for inside-out captures, under every
     // option of the command line.
+    // The cameras are loaded (without images) once, and only if a table needs them.
+    let mut cameras = None;
     if config.with_cameras_inside.is_some() {
-        let inside = load_scene_cameras(&config)?.cameras_inside_box();
-        let applied = config.apply_with_cameras_inside(inside, &source)?;
+        let scene = cameras.insert(load_scene_cameras(&config)?);
+        let applied = config.apply_with_cameras_inside(scene.cameras_inside_box(), &source)?;
         if !applied.is_empty() {
             eprintln!("every training camera stands inside the scene box: [with_cameras_inside] in {source} sets {}", applied.join(", "));
         }
     }
     if !config.with_views.is_empty() {
         // `--views` is in `scene.views` by now, as is a config file's own.
-        let views = match config.scene.views {
-            Some(k) => k,
-            None => load_scene_cameras(&config)?.split.train.len(),
+        let views = match (config.scene.views, cameras) {
+            (Some(k), _) => k,
+            (None, Some(scene)) => scene.split.train.len(),
+            (None, None) => load_scene_cameras(&config)?.split.train.len(),
         };
         let applied = config.apply_with_views(views, &source)?;
         if !applied.is_empty() {
