@@ -131,29 +131,32 @@ mod tests {
     }
 
     /// `[with_cameras_inside]` of the Blender and object presets: an inside-out capture
-    /// gets the learned background on the box itself (3 maps up to 64 x 128) and a
-    /// constant opacity penalty of 0.01; a capture seen from outside keeps the preset's
-    /// own background and penalty. The LLFF and DTU presets have no such table.
+    /// gets the learned background on the box itself (3 maps up to 64 x 128, learning at
+    /// 0.3 times the field's rate), a constant opacity penalty of 0.01 and an occupancy
+    /// grid that forgets in half the steps (decay 0.9); a capture seen from outside keeps
+    /// the preset's own background, penalty and grid. The LLFF and DTU presets have no
+    /// such table.
     #[test]
     fn inside_out_captures_get_the_background_on_the_box() {
         use edgenerf::render::ShellShape;
         for preset in [SPARSE_SMALL, SPARSE_OBJECT] {
             for inside in [false, true] {
                 let mut c = RunConfig::from_text_for(preset.text, true, preset.path, None).unwrap();
-                let (sparsity, steps) = (c.priors.sparsity, c.priors.sparsity_steps);
+                let (sparsity, steps, decay) = (c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay);
                 let applied = c.apply_with_cameras_inside(inside, preset.path).unwrap();
                 c.apply_with_views(3, preset.path).unwrap();
                 c.resolve();
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 6, "{}", preset.path);
-                    assert_eq!((bg.shell_shape, bg.shell_radius, bg.levels, bg.finest_height), (ShellShape::Box, 1.0, 3, 64), "{}", preset.path);
-                    assert_eq!((c.priors.sparsity, c.priors.sparsity_steps), (0.01, 0), "{}", preset.path);
+                    assert_eq!(applied.len(), 8, "{}", preset.path);
+                    assert_eq!((bg.shell_shape, bg.shell_radius, bg.levels, bg.finest_height, bg.lr_scale), (ShellShape::Box, 1.0, 3, 64, 0.3), "{}", preset.path);
+                    assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (0.01, 0, 0.9), "{}", preset.path);
                 } else {
                     assert!(applied.is_empty(), "{}", preset.path);
-                    assert_eq!((bg.shell_shape, bg.shell_radius), (ShellShape::Sphere, 0.0), "{}", preset.path);
-                    assert_eq!((c.priors.sparsity, c.priors.sparsity_steps), (sparsity, steps), "{}", preset.path);
+                    assert_eq!((bg.shell_shape, bg.shell_radius, bg.lr_scale), (ShellShape::Sphere, 0.0, 1.0), "{}", preset.path);
+                    assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (sparsity, steps, decay), "{}", preset.path);
+                    assert_eq!(decay, 0.95, "{}: the grid's own decay outside", preset.path);
                 }
             }
         }
