@@ -81,7 +81,7 @@ mod tests {
     /// is on at every view count (unlike the object preset's).
     #[test]
     fn dtu_preset_follows_the_view_count() {
-        for (views, sh, iters, min_alpha) in [(3, 0, 800, 0.01), (8, 0, 800, 0.01), (9, 2, 4800, 0.02)] {
+        for (views, sh, iters, min_alpha) in [(3, 0, 800, 0.05), (8, 0, 800, 0.05), (9, 2, 4800, 0.02)] {
             let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
             assert_eq!(c.sampler.visibility.min_alpha, min_alpha, "{views} views");

@@ -204,7 +204,7 @@ pub(crate) mod tests {
             })
             .collect();
         let d = GpuBuffer::from_slice(gpu, "dens", &dens).unwrap();
-        let upd = grid.update(gpu, &q.cells, &d, q.count).unwrap();
+        let upd = grid.update(&gpu, &q.cells, &d, q.count, q.decay).unwrap();
         assert!(upd.changed && upd.occupied_bricks > 10, "{upd:?}");
         grid
     }
@@ -323,7 +323,7 @@ pub(crate) mod tests {
         // Empty grid (all densities 0): no BVH, no intervals.
         let q = grid.query_points(&gpu, 0, 0).unwrap();
         let zeros = GpuBuffer::from_slice(&gpu, "z", &vec![0.0f32; q.count as usize]).unwrap();
-        let upd = grid.update(&gpu, &q.cells, &zeros, q.count).unwrap();
+        let upd = grid.update(&gpu, &q.cells, &zeros, q.count, q.decay).unwrap();
         assert_eq!((upd.occupied_cells, upd.occupied_bricks), (0, 0));
         assert!(ray_intervals(&gpu, &grid, &[ray], 16).unwrap()[0].is_empty());
     }

@@ -498,7 +498,7 @@ mod occupancy_tests {
             let pos = q.positions.read(&gpu).unwrap();
             let dens: Vec<f32> = pos.iter().map(|p| sphere_density(Vec3::new(p[0], p[1], p[2]))).collect();
             let d = GpuBuffer::from_slice(&gpu, "density", &dens).unwrap();
-            let upd = grid.update(&gpu, &q.cells, &d, q.count).unwrap();
+            let upd = grid.update(&gpu, &q.cells, &d, q.count, q.decay).unwrap();
             eprintln!("step {step}: {} points, {upd:?}", q.count);
         }
         // A 32 x 32 pinhole camera inside the box looking at the sphere; most rays miss it.
@@ -562,7 +562,7 @@ mod occupancy_tests {
         let dens: Vec<f32> = pos.iter().map(|p| sphere_density(Vec3::new(p[0], p[1], p[2]) * 4.0)).collect();
         let d = GpuBuffer::from_slice(&gpu, "density", &dens).unwrap();
         let t = Instant::now();
-        let upd = grid.update(&gpu, &q.cells, &d, q.count).unwrap();
+        let upd = grid.update(&gpu, &q.cells, &d, q.count, q.decay).unwrap();
         let t_update = t.elapsed();
         eprintln!("{} ({:?})", gpu.adapter(), upd);
         eprintln!("grid 128^3: query {} points {t_query:?} (incl. readback), update {t_update:?}", q.count);

@@ -103,6 +103,8 @@ pub struct OccupancyQuery {
     pub positions: GpuBuffer<[f32; 4]>,
     pub cells: GpuBuffer<u32>,
     pub count: u32,
+    /// The EMA decay of this update ([`SamplerConfig::decay_at`] its step).
+    pub decay: f32,
 }
 
 /// What an update did.
@@ -211,7 +213,7 @@ impl OccupancyGrid {
             _pad: [0; 3],
         });
         enc.dispatch_threads(&kernel, &[&params, &self.occupied.buffer, &positions.buffer, &cells.buffer], count);
-        Ok(OccupancyQuery { positions, cells, count })
+        Ok(OccupancyQuery { positions, cells, count, decay: self.config.decay_at(step) })
     }
 
     /// Folds the densities evaluated at a query's points into the grid, rebuilds the
@@ -223,9 +225,10 @@ impl OccupancyGrid {
         cells: &GpuBuffer<u32>,
         densities: &GpuBuffer<f32>,
         count: u32,
+        decay: f32,
     ) -> Result<OccupancyUpdate, SamplerError> {
         let mut enc = gpu.encoder();
-        self.record_update(&mut enc, cells, densities, count)?;
+        self.record_update(&mut enc, cells, densities, count, decay)?;
         self.finish_update(enc)
     }
 
@@ -237,6 +240,7 @@ impl OccupancyGrid {
         cells: &GpuBuffer<u32>,
         densities: &GpuBuffer<f32>,
         count: u32,
+        decay: f32,
     ) -> Result<(), SamplerError> {
         let gpu = enc.gpu();
         assert!(
@@ -247,7 +251,7 @@ impl OccupancyGrid {
         );
         let n_cells = self.geom.n_cells;
         let threshold = self.config.density_threshold(self.layout.aabb);
-        let params = CountParams { n: count, n_cells, decay: self.config.decay, threshold };
+        let params = CountParams { n: count, n_cells, decay, threshold };
         let p_update = enc.params(&params);
         enc.dispatch_threads(
             &*gpu.kernel(&SCATTER_MAX)?,
@@ -371,7 +375,7 @@ impl OccupancyGrid {
         self.density.write(gpu, density);
         let none_u32 = GpuBuffer::<u32>::zeros(gpu, "no query cells", 1)?;
         let none_f32 = GpuBuffer::<f32>::zeros(gpu, "no query densities", 1)?;
-        self.update(gpu, &none_u32, &none_f32, 0)
+        self.update(gpu, &none_u32, &none_f32, 0, self.config.decay)
     }
 
     /// Rebuilds the occupied list and the brick BVH from `bits` and uploads them.
@@ -484,7 +488,9 @@ pub(crate) mod tests {
             cells
         }
 
-        fn update(&mut self, cells: &[u32], dens: &[f32]) {
+        /// `decay` is the rule's: `warmup_decay` before `warmup_steps`, else `decay`.
+        fn update(&mut self, step: u32, cells: &[u32], dens: &[f32]) {
+            let decay = if step < self.cfg.warmup_steps { self.cfg.warmup_decay.unwrap_or(self.cfg.decay) } else { self.cfg.decay };
             let mut new = vec![None::<f32>; self.density.len()];
             for (&c, &d) in cells.iter().zip(dens) {
                 let d = if d > 0.0 { d.min(3.0e38) } else { 0.0 };
@@ -493,7 +499,7 @@ pub(crate) mod tests {
             }
             for (g, n) in self.density.iter_mut().zip(new) {
                 if let Some(d) = n {
-                    *g = (*g * self.cfg.decay).max(d);
+                    *g = (*g * decay).max(d);
                 }
             }
             let mean = self.density.iter().map(|&v| v as f64).sum::<f64>() / self.density.len() as f64;
@@ -514,7 +520,9 @@ pub(crate) mod tests {
     #[test]
     fn sampler_grid_update_matches_cpu_reference_through_warmup() {
         let gpu = crate::gpu::test_gpu(false);
-        let cfg = SamplerConfig { resolution: 24, warmup_steps: 48, brick_size: 4, ..Default::default() };
+        // A warm-up decay of its own, so both phases' EMA are checked.
+        let cfg =
+            SamplerConfig { resolution: 24, warmup_steps: 48, warmup_decay: Some(0.5), brick_size: 4, ..Default::default() };
         let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
         let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
         let n = 24u32.pow(3);
@@ -531,6 +539,7 @@ pub(crate) mod tests {
             let want_cells = cpu.query_cells(step, seed);
             assert_eq!(cells, want_cells, "query cells at step {step}");
             assert_eq!(q.count as usize, cells.len());
+            assert_eq!(q.decay, if step < 48 { 0.5 } else { 0.95 }, "decay at step {step}");
             if step >= cfg.warmup_steps {
                 saw_random_phase = true;
                 assert!(cells.len() < n as usize);
@@ -547,8 +556,8 @@ pub(crate) mod tests {
             }
             let dens: Vec<f32> = pos.iter().map(|&p| density_at(p, step)).collect();
             let dbuf = GpuBuffer::from_slice(&gpu, "dens", &dens).unwrap();
-            let upd = grid.update(&gpu, &q.cells, &dbuf, q.count).unwrap();
-            cpu.update(&cells, &dens);
+            let upd = grid.update(&gpu, &q.cells, &dbuf, q.count, q.decay).unwrap();
+            cpu.update(step, &cells, &dens);
             let got = grid.read_density(&gpu).unwrap();
             assert_eq!(got, cpu.density, "EMA at step {step}");
             let mean = cpu.density.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
@@ -588,7 +597,7 @@ pub(crate) mod tests {
             // Dense everywhere: without the mask every cell would be occupied.
             let q = grid.query_points(&gpu, step, 3 + step).unwrap();
             let dens = GpuBuffer::from_slice(&gpu, "dens", &vec![50.0f32; q.count as usize]).unwrap();
-            let upd = grid.update(&gpu, &q.cells, &dens, q.count).unwrap();
+            let upd = grid.update(&gpu, &q.cells, &dens, q.count, q.decay).unwrap();
             assert_eq!(upd.occupied_cells, kept, "step {step}");
             let (host, device) = bits_of(&grid, &gpu);
             assert_eq!(host, device, "the GPU bitfield is masked too");

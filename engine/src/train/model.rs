@@ -345,7 +345,7 @@ impl Model {
         }
         let densities = self.occupancy_densities.as_ref().unwrap();
         self.field.record_density(&mut enc, &query.positions, query.count, densities)?;
-        self.occupancy.record_update(&mut enc, &query.cells, densities, query.count)?;
+        self.occupancy.record_update(&mut enc, &query.cells, densities, query.count, query.decay)?;
         Ok(Some(self.occupancy.finish_update(enc)?))
     }
 
