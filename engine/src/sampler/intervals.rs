@@ -204,7 +204,7 @@ pub(crate) mod tests {
             })
             .collect();
         let d = GpuBuffer::from_slice(gpu, "dens", &dens).unwrap();
-        let upd = grid.update(&gpu, &q.cells, &d, q.count, q.decay).unwrap();
+        let upd = grid.update(gpu, &q.cells, &d, q.count, q.decay).unwrap();
         assert!(upd.changed && upd.occupied_bricks > 10, "{upd:?}");
         grid
     }

@@ -490,7 +490,8 @@ pub(crate) mod tests {
 
         /// `decay` is the rule's: `warmup_decay` before `warmup_steps`, else `decay`.
         fn update(&mut self, step: u32, cells: &[u32], dens: &[f32]) {
-            let decay = if step < self.cfg.warmup_steps { self.cfg.warmup_decay.unwrap_or(self.cfg.decay) } else { self.cfg.decay };
+            let warmup = step < self.cfg.warmup_steps;
+            let decay = if warmup { self.cfg.warmup_decay.unwrap_or(self.cfg.decay) } else { self.cfg.decay };
             let mut new = vec![None::<f32>; self.density.len()];
             for (&c, &d) in cells.iter().zip(dens) {
                 let d = if d > 0.0 { d.min(3.0e38) } else { 0.0 };
