@@ -6,7 +6,8 @@
 //! the same patches ([`depth_normal`]), their long-range planarity on triplets of
 //! pixels inside non-edge regions ([`planarity`]), the cross-view photometric
 //! consistency of the rendered depth ([`reprojection`]) and RegNeRF's depth total
-//! variation on patches from random poses ([`depth_tv`]). The depth the edge-guided
+//! variation on patches from random poses ([`depth_tv`]); the stereo depth prior toward
+//! the depths a plane sweep over the training views found ([`stereo_depth`]). The depth the edge-guided
 //! terms regularize and its opacity floor live below all three in [`depth_estimate`].
 //! Invariant: a loss *writes* or *adds*
 //! `dL/d RayOutput` per ray into one shared gradient buffer, never touching sampler,
@@ -19,6 +20,7 @@ pub mod edge_reg;
 pub mod photometric;
 pub mod planarity;
 pub mod reprojection;
+pub mod stereo_depth;
 #[cfg(test)]
 pub(crate) mod test_support;
 

@@ -98,6 +98,21 @@ pub struct PriorConfig {
     /// The gate's colour tolerance `tol`, a per-channel RMS difference from the
     /// background: a pixel this far off gets `1 - 1/e` of the weight.
     pub foreground_tolerance: f32,
+    /// Weight of the stereo depth prior (0: off): each photometric ray's depth given
+    /// termination is pulled toward the depth a plane sweep over the training views found
+    /// at its pixel, where another view confirms it (`crate::train::stereo`,
+    /// `crate::loss::stereo_depth`). Needs two or more training views and world-space
+    /// rays (not LLFF's NDC).
+    pub stereo_depth: f32,
+    /// Depth planes of the sweep (uniform in inverse depth over the box).
+    pub stereo_planes: u32,
+    /// Half-width of the sweep's cost window, in pixels (a `(2w + 1)^2` square).
+    pub stereo_window: u32,
+    /// The left-right check: another view's depth must meet the same 3D point within
+    /// this fraction of the depth.
+    pub stereo_consistency: f32,
+    /// The Charbonnier scale of the prior's relative depth error.
+    pub stereo_delta: f32,
 }
 
 impl Default for PriorConfig {
@@ -113,6 +128,11 @@ impl Default for PriorConfig {
             opacity_entropy_start: 0,
             foreground_opacity: 0.0,
             foreground_tolerance: 0.1,
+            stereo_depth: 0.0,
+            stereo_planes: 128,
+            stereo_window: 2,
+            stereo_consistency: 0.01,
+            stereo_delta: 0.01,
         }
     }
 }
@@ -126,6 +146,7 @@ impl PriorConfig {
             ("priors.sparsity", self.sparsity),
             ("priors.opacity_entropy", self.opacity_entropy),
             ("priors.foreground_opacity", self.foreground_opacity),
+            ("priors.stereo_depth", self.stereo_depth),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
@@ -134,6 +155,17 @@ impl PriorConfig {
         let tol = self.foreground_tolerance;
         if !(tol.is_finite() && tol > 0.0) {
             return Err(format!("priors.foreground_tolerance must be a colour difference > 0, got {tol}"));
+        }
+        if !(2..=4096).contains(&self.stereo_planes) || self.stereo_window > 32 {
+            return Err(format!(
+                "priors.stereo_planes = {} must be 2 to 4096 and priors.stereo_window = {} at most 32",
+                self.stereo_planes, self.stereo_window
+            ));
+        }
+        for (name, v) in [("priors.stereo_consistency", self.stereo_consistency), ("priors.stereo_delta", self.stereo_delta)] {
+            if !(v.is_finite() && v > 0.0 && v < 1.0) {
+                return Err(format!("{name} must be a fraction in (0, 1), got {v}"));
+            }
         }
         let f = self.occlusion_range;
         if !(f.is_finite() && f > 0.0 && f <= 1.0) {
@@ -263,6 +295,19 @@ mod tests {
         assert_eq!([entropy.opacity_entropy_at(299), entropy.opacity_entropy_at(300)], [0.0, 0.01]);
         assert_eq!(entropy.sparsity_at(100), 0.03);
         assert!(PriorConfig { opacity_entropy: f32::NAN, ..Default::default() }.validate().is_err());
+    }
+
+    #[test]
+    fn the_stereo_prior_checks_its_sweep_settings() {
+        let on = PriorConfig { stereo_depth: 0.03, ..Default::default() };
+        assert!(on.validate().is_ok());
+        assert!(PriorConfig { stereo_depth: -0.1, ..on }.validate().unwrap_err().contains("priors.stereo_depth"));
+        assert!(PriorConfig { stereo_planes: 1, ..on }.validate().unwrap_err().contains("priors.stereo_planes"));
+        assert!(PriorConfig { stereo_window: 33, ..on }.validate().unwrap_err().contains("priors.stereo_window"));
+        for bad in [0.0, 1.0, f32::NAN] {
+            assert!(PriorConfig { stereo_consistency: bad, ..on }.validate().unwrap_err().contains("priors.stereo_consistency"));
+            assert!(PriorConfig { stereo_delta: bad, ..on }.validate().unwrap_err().contains("priors.stereo_delta"));
+        }
     }
 
     #[test]

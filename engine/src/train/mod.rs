@@ -76,6 +76,7 @@ pub mod rays;
 pub mod regnerf;
 pub mod reprojection_views;
 pub mod run;
+pub mod stereo;
 
 use std::path::{Path, PathBuf};
 
@@ -388,6 +389,12 @@ impl Trainer {
 
     pub fn config(&self) -> &RunConfig {
         &self.model.config
+    }
+
+    /// With the stereo depth prior: the fraction of the training views' pixels the
+    /// plane sweep gave a depth ([`Pipeline::stereo_coverage`]).
+    pub fn stereo_coverage(&self) -> Option<f64> {
+        self.pipeline.stereo_coverage()
     }
 
     /// Steps done so far.

@@ -47,6 +47,7 @@ use crate::data::Scene;
 use crate::gpu::{Encoder, Gpu, GpuBuffer, ReadBack, ReadBatch, ReadSlot};
 use crate::optim::Guard;
 use crate::loss::photometric::{OpacityPriors, Recomposite};
+use crate::loss::stereo_depth::StereoDepth;
 use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
 use crate::render::{Background, RenderConfig, RayPriors, Renderer};
 use crate::sampler::{DropTruncated, LiveCompaction, Visibility};
@@ -57,6 +58,7 @@ use super::config::{BatchKind, RunConfig};
 use super::model::{BatchBuffers, Model};
 use super::profile::{Stage, StageTimes, end_recorded_stage};
 use super::rays::PixelBatch;
+use super::stereo::{self, StereoTargets, SweepSettings};
 
 /// What a step asks of the pipeline besides its batch: the loss weights in effect at
 /// the step and its seeds.
@@ -192,6 +194,8 @@ pub struct Pipeline {
     /// The reprojection term when it is on, and each scene view's position in the
     /// training list (what the term's per-ray source index is).
     reprojection: Option<(Reprojection, Vec<u32>)>,
+    /// The stereo depth prior when it is on, and the sweep's depth maps per scene view.
+    stereo: Option<(StereoDepth, StereoTargets)>,
 }
 
 impl Pipeline {
@@ -218,6 +222,14 @@ impl Pipeline {
         } else {
             None
         };
+        let stereo = if config.priors.stereo_depth > 0.0 {
+            let p = &config.priors;
+            let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency };
+            let maps = stereo::sweep(scene, settings).map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
+            Some((StereoDepth::new(gpu, n)?, maps))
+        } else {
+            None
+        };
         let mut renderer = Renderer::new(gpu, render_config)?;
         // The priors apply to every rendered ray of a batch, random-pose rays included.
         renderer.set_priors(config.priors.weights(n_all, scene.near, scene.far));
@@ -240,7 +252,16 @@ impl Pipeline {
             depth_tv: DepthTv::new(gpu, n_tv)?,
             planarity: Planarity::new(gpu, n_triplets)?,
             reprojection,
+            stereo,
         })
+    }
+
+    /// With the stereo depth prior: the fraction of the training views' pixels the
+    /// sweep gave a depth.
+    pub fn stereo_coverage(&self) -> Option<f64> {
+        let (_, maps) = self.stereo.as_ref()?;
+        let (kept, all) = maps.iter().flatten().fold((0usize, 0usize), |(k, a), m| (k + m.iter().filter(|&&t| t > 0.0).count(), a + m.len()));
+        Some(kept as f64 / all.max(1) as f64)
     }
 
     /// Random-pose rays a batch carries after its photometric rays (0: none).
@@ -348,6 +369,15 @@ impl Pipeline {
         if let Some((term, position, _)) = self.reprojection_at(plan) {
             term.source.write(gpu, &batch.views.iter().map(|&v| position[v as usize]).collect::<Vec<_>>());
         }
+        if let Some((term, maps)) = &self.stereo {
+            let at = |(&v, &p): (&u32, &u32)| match maps[v as usize].as_ref().map(|m| m[p as usize]) {
+                Some(t) if t > 0.0 => [t, 1.0],
+                _ => [0.0, 0.0],
+            };
+            let mut targets: Vec<[f32; 2]> = batch.views.iter().zip(&batch.pixels).map(at).collect();
+            targets.resize(self.n as usize, [0.0; 2]);
+            term.targets.write(gpu, &targets);
+        }
         if let Some((alpha, _)) = &self.random_background {
             let mut a: Vec<f32> = batch.alpha.iter().map(|a| a.unwrap_or(1.0)).collect();
             a.resize(alpha.len(), 1.0);
@@ -403,6 +433,9 @@ impl Pipeline {
             foreground_tolerance: priors.foreground_tolerance,
         };
         self.photometric.record(enc, rays_out, &self.targets, &bufs.render_out.aux, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
+        if let Some((term, _)) = &self.stereo {
+            term.record(enc, rays_out, &self.targets, &self.d_rays, n, priors.stereo_depth, priors.stereo_delta);
+        }
         if let Some(w) = &plan.reg {
             self.edge_reg.record(enc, rays_out, &self.d_rays, n / 4, w);
             if let Some(term) = w.depth_normal_term() {

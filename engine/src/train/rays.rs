@@ -56,6 +56,8 @@ pub struct PixelBatch {
     pub alpha: Vec<Option<f32>>,
     /// The index into `Scene::views` of each ray's view.
     pub views: Vec<u32>,
+    /// Each ray's pixel in its view, `y * width + x`.
+    pub pixels: Vec<u32>,
     /// Per ray `(e, z_scale)` for the edge-guided regularizers (patch batches only):
     /// `e` = 1 on non-edge pixels; `z_scale` turns the rendered ray parameter into the
     /// regularized depth ([`Ray::z_scale`]: along the camera axis in world space, 1 in NDC).
@@ -99,6 +101,7 @@ impl PixelBatch {
         let w = scene.views[view].camera.width;
         self.alpha.push(scene.views[view].alpha.as_ref().map(|a| a[(y * w + x) as usize]));
         self.views.push(view as u32);
+        self.pixels.push(y * w + x);
         ray.z_scale
     }
 }

@@ -571,6 +571,16 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             c.finest_height
         );
     }
+    if let Some(coverage) = trainer.stereo_coverage() {
+        let p = &config.priors;
+        eprintln!(
+            "stereo depth prior: a sweep of {} depth planes over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {})",
+            p.stereo_planes,
+            100.0 * coverage,
+            p.stereo_depth,
+            p.stereo_consistency
+        );
+    }
     if let Some(seen) = trainer.model.occupancy.seen_cells() {
         eprintln!(
             "seen cells: {:.1} % of the occupancy grid is imaged by at least {} training camera(s); the rest is never marched (sampler.seen_cells_only, sampler.seen_views)",
