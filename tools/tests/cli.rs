@@ -319,6 +319,28 @@ fn llff_factor_flag_reads_another_image_folder() {
     assert!(!o.status.success() && text(&o).contains("--llff-factor"), "{}", text(&o));
 }
 
+/// The stereo depth prior's sweep needs world-space rays: on an LLFF capture (NDC rays)
+/// `train` says so before it computes edge maps.
+#[test]
+fn the_stereo_prior_is_refused_on_ndc_scenes_before_the_edge_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rows = Vec::new();
+    for i in 0..9 {
+        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 48.0, 0.0, 1.0, 0.0, 0.0, 64.0, 0.0, 0.0, 1.0, 0.0, 80.0, 2.0, 20.0]);
+        let p = dir.path().join(format!("images_4/img{i}.png"));
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        image::RgbImage::from_fn(16, 12, |x, y| image::Rgb([(x * 15) as u8, (y * 20) as u8, 90])).save(&p).unwrap();
+    }
+    edgenerf::data::npy::write_npy_f64(&dir.path().join("poses_bounds.npy"), &[9, 17], &rows).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    let args = ["train", dir.path().to_str().unwrap(), "--llff-factor", "4", "--iters", "2", "--no-eval", "--out", run.to_str().unwrap()];
+    let o = edgenerf(&[&args[..], &["--set", "priors.stereo_depth=0.03"]].concat());
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("NDC") && t.contains("priors.stereo_depth = 0"), "{t}");
+    assert!(!run.join("edges").exists(), "refused before the edge maps");
+}
+
 /// Printing into a closed pipe (`edgenerf info ... | head -1`) panicked with a backtrace;
 /// it now ends quietly on SIGPIPE, as other Unix tools do.
 #[cfg(unix)]

@@ -37,11 +37,18 @@ pub struct SweepSettings {
 /// major, 0 = none) for training views with another training view, `None` otherwise.
 pub type StereoTargets = Vec<Option<Vec<f32>>>;
 
-/// The sweep of every training view (see the module doc).
-pub fn sweep(scene: &Scene, settings: SweepSettings) -> Result<StereoTargets, String> {
+/// Refuses a scene the sweep cannot run on (NDC rays), with what to do; from the
+/// cameras alone, so `train` can say so before it spends time on edge maps.
+pub fn check_scene(scene: &Scene) -> Result<(), String> {
     if scene.ndc.is_some() {
         return Err("priors.stereo_depth sweeps world-space rays; this scene's rays are NDC (a forward-facing LLFF capture): set priors.stereo_depth = 0".into());
     }
+    Ok(())
+}
+
+/// The sweep of every training view (see the module doc).
+pub fn sweep(scene: &Scene, settings: SweepSettings) -> Result<StereoTargets, String> {
+    check_scene(scene)?;
     let train = &scene.split.train;
     let w2c: Vec<Mat4> = scene.views.iter().map(|v| v.camera.w2c()).collect();
     let winners: Vec<Option<Winners>> = (0..scene.views.len())

@@ -216,12 +216,16 @@ fn default_preset(args: &Args, backend: Option<Backend>) -> anyhow::Result<Optio
     Ok(Some(preset))
 }
 
-/// Refuses, from the image sizes and before the edge detection, a scene too large for
-/// the reprojection term's one storage binding (a 6000x6000 capture was refused only
-/// after 48 s of edge detection).
-fn check_reprojection_fits(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow::Result<()> {
+/// Refuses, from the image sizes and cameras and before the edge detection, a scene too
+/// large for the reprojection term's one storage binding (a 6000x6000 capture was
+/// refused only after 48 s of edge detection) or one the stereo depth prior's sweep
+/// cannot run on (NDC rays).
+fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow::Result<()> {
     if config.reg.reprojection_on() && config.train.batch == edgenerf::train::BatchKind::Patches {
         edgenerf::train::pipeline::check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
+    }
+    if config.priors.stereo_depth > 0.0 {
+        edgenerf::train::stereo::check_scene(scene).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
     Ok(())
 }
@@ -534,7 +538,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         let scene = load_scene(&ckpt.config)?;
         check_test_views(&args, &scene)?;
         check_training_views(&scene)?;
-        check_reprojection_fits(&gpu, &ckpt.config, &scene)?;
+        check_terms_fit_scene(&gpu, &ckpt.config, &scene)?;
         let masks = edge_masks(&args, &ckpt.config, &scene)?;
         Trainer::resume(gpu, scene, ckpt, masks).with_context(|| format!("resuming from {}", ckpt_path.display()))?
     } else {
@@ -542,7 +546,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         let scene = load_scene(&config)?;
         check_test_views(&args, &scene)?;
         check_training_views(&scene)?;
-        check_reprojection_fits(&gpu, &config, &scene)?;
+        check_terms_fit_scene(&gpu, &config, &scene)?;
         let masks = edge_masks(&args, &config, &scene)?;
         Trainer::with_edge_masks(gpu, scene, config, masks)?
     };
