@@ -297,19 +297,26 @@ fn a_scene_without_test_views_is_refused_before_training() {
     assert!(!run.join("log.csv").exists() && !run.join("checkpoint.safetensors").exists(), "refused before training");
 }
 
+/// An LLFF capture of `n` 16x12 images in `images_4/` (pixels from `pixel`), cameras
+/// 0.1 apart along x.
+fn tiny_llff(n: usize, pixel: impl Fn(u32, u32) -> image::Rgb<u8>) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rows = Vec::new();
+    for i in 0..n {
+        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 48.0, 0.0, 1.0, 0.0, 0.0, 64.0, 0.0, 0.0, 1.0, 0.0, 80.0, 2.0, 20.0]);
+        let p = dir.path().join(format!("images_4/img{i}.png"));
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        image::RgbImage::from_fn(16, 12, &pixel).save(&p).unwrap();
+    }
+    edgenerf::data::npy::write_npy_f64(&dir.path().join("poses_bounds.npy"), &[n, 17], &rows).unwrap();
+    dir
+}
+
 /// `--llff-factor N` reads images_N (there was no flag; the error for a missing images_8
 /// cited an internal API).
 #[test]
 fn llff_factor_flag_reads_another_image_folder() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut rows = Vec::new();
-    for i in 0..3 {
-        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 48.0, 0.0, 1.0, 0.0, 0.0, 64.0, 0.0, 0.0, 1.0, 0.0, 80.0, 2.0, 20.0]);
-        let p = dir.path().join(format!("images_4/img{i}.png"));
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        image::RgbImage::new(16, 12).save(&p).unwrap();
-    }
-    edgenerf::data::npy::write_npy_f64(&dir.path().join("poses_bounds.npy"), &[3, 17], &rows).unwrap();
+    let dir = tiny_llff(3, |_, _| image::Rgb([0, 0, 0]));
     let scene = dir.path().to_str().unwrap();
     let o = edgenerf(&["info", scene, "--no-gpu"]);
     assert!(!o.status.success() && text(&o).contains("images_4 (--llff-factor 4)"), "{}", text(&o));
@@ -323,19 +330,11 @@ fn llff_factor_flag_reads_another_image_folder() {
 /// `train` says so before it computes edge maps.
 #[test]
 fn the_stereo_prior_is_refused_on_ndc_scenes_before_the_edge_maps() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut rows = Vec::new();
-    for i in 0..9 {
-        rows.extend_from_slice(&[1.0, 0.0, 0.0, i as f64 * 0.1, 48.0, 0.0, 1.0, 0.0, 0.0, 64.0, 0.0, 0.0, 1.0, 0.0, 80.0, 2.0, 20.0]);
-        let p = dir.path().join(format!("images_4/img{i}.png"));
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        image::RgbImage::from_fn(16, 12, |x, y| image::Rgb([(x * 15) as u8, (y * 20) as u8, 90])).save(&p).unwrap();
-    }
-    edgenerf::data::npy::write_npy_f64(&dir.path().join("poses_bounds.npy"), &[9, 17], &rows).unwrap();
+    let dir = tiny_llff(9, |x, y| image::Rgb([(x * 15) as u8, (y * 20) as u8, 90]));
     let out = tempfile::tempdir().unwrap();
     let run = out.path().join("run");
-    let args = ["train", dir.path().to_str().unwrap(), "--llff-factor", "4", "--iters", "2", "--no-eval", "--out", run.to_str().unwrap()];
-    let o = edgenerf(&[&args[..], &["--set", "priors.stereo_depth=0.03"]].concat());
+    let scene = dir.path().to_str().unwrap();
+    let o = edgenerf(&["train", scene, "--llff-factor", "4", "--iters", "2", "--no-eval", "--out", run.to_str().unwrap(), "--set", "priors.stereo_depth=0.03"]);
     let t = text(&o);
     assert!(!o.status.success() && t.contains("NDC") && t.contains("priors.stereo_depth = 0"), "{t}");
     assert!(!run.join("edges").exists(), "refused before the edge maps");

@@ -33,14 +33,15 @@
 use crate::gpu::{Binding, Encoder, Gpu, GpuBuffer, GpuError, KernelSpec};
 use crate::layout::RayOutput;
 
+// `eps` of the division by the opacity: the reprojection term's, whose depth given
+// termination this term reads the same way.
+use super::reprojection::OPACITY_EPS;
+
 const SPEC: KernelSpec = KernelSpec {
     file: "loss/stereo_depth.wgsl",
     entry: "stereo_depth",
     bindings: &[Binding::Params, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite, Binding::ReadWrite],
 };
-
-/// `eps` of the division by the opacity.
-pub const OPACITY_EPS: f32 = f32::EPSILON;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

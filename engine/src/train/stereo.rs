@@ -90,11 +90,12 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
     let mut best = vec![f32::INFINITY; n];
     let mut depth = vec![0.0f32; n];
     let mut cost = vec![0.0f32; n];
+    let own: Vec<[f32; 3]> = (0..n as u32).map(|p| view.image.get(p % w, p / w)).collect();
     for k in 0..planes {
         let f = k as f32 / (planes - 1) as f32;
         let t = 1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near));
         for p in 0..n {
-            let own = view.image.get(p as u32 % w, p as u32 / w);
+            let own = own[p];
             let x = origin[p] + t * dir[p];
             cost[p] = others
                 .iter()
