@@ -75,7 +75,10 @@ pub struct RayAux {
     /// The ray's orientation penalty `R` ([`crate::render::priors`], unweighted; 0 when the
     /// field computed no normals).
     pub orientation: f32,
-    pub _pad: u32,
+    /// Input, written by the caller before the forward pass (which keeps it): the ray
+    /// parameter before which the stereo free-space prior penalises density
+    /// ([`crate::render::priors`]); 0 (the default) for none.
+    pub free_end: f32,
 }
 
 /// Where the samples of one ray are.
@@ -229,7 +232,7 @@ mod wgsl_mirrors {
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
         crate::assert_wgsl_mirror!(GpuRay, "common/layout.wgsl", "Ray", [origin, t_min, dir, t_max]);
-        crate::assert_wgsl_mirror!(RayAux, "common/layout.wgsl", "RayAux", [background, n_contrib, distortion, occlusion, orientation]);
+        crate::assert_wgsl_mirror!(RayAux, "common/layout.wgsl", "RayAux", [background, n_contrib, distortion, occlusion, orientation, free_end]);
         crate::assert_wgsl_mirror!(SampleRange, "common/layout.wgsl", "SampleRange", [start, count]);
         crate::assert_wgsl_mirror!(GpuSample, "common/layout.wgsl", "Sample", [pos, t, dir, dt]);
         crate::assert_wgsl_mirror!(RayOutput, "common/layout.wgsl", "RayOutput", [rgb, opacity, normal, depth]);

@@ -36,7 +36,9 @@ struct RayAux {
     distortion: f32,
     occlusion: f32,
     orientation: f32,
-    _pad0: u32,
+    // Input (the caller writes it, the forward keeps it): the stereo free-space prior's
+    // end, the ray parameter before which density is penalised (0: none).
+    free_end: f32,
 }
 
 // LiveSamples (engine/src/layout.rs): one u32 list whose count sits in count[0]'s

@@ -37,6 +37,10 @@
 // total; dO/dsigma_i = dt_i is added to the density gradient directly; dR/dw_i =
 // max(0, <n_i, d_i>)^2 enters u_i and R (degree 1) total, and dR/dn_i =
 // 2 w_i max(0, <n_i, d_i>) d_i the normal gradient.
+// The stereo free-space prior, per ray up to the caller's aux.free_end (0: none),
+//   F = sum_{i: t_i < free_end} sigma_i dt_i,
+// adds params.free_space * F: dF/dsigma_i = dt_i, to the density gradient directly as
+// the occlusion term (its value is not stored).
 
 //#include "common/dispatch.wgsl"
 //#include "common/layout.wgsl"
@@ -61,7 +65,8 @@ struct Params {
     // Samples with t below this are in the occlusion prior's range.
     occlusion_end: f32,
     orientation: f32,
-    _pad1: u32,
+    // Backward: the weight of the stereo free-space prior (0: off).
+    free_space: f32,
     _pad2: u32,
 }
 
@@ -115,6 +120,8 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     }
     let range = ranges[r];
     let bg = background_for(r);
+    // The caller's input, kept for the backward.
+    let free_end = aux[r].free_end;
     var T = 1.0;
     var acc_rgb = vec3<f32>(0.0);
     var acc_opacity = 0.0;
@@ -159,7 +166,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         }
     }
     rays[r] = RayOutput(acc_rgb + (1.0 - acc_opacity) * bg, acc_opacity, acc_normal, acc_depth);
-    aux[r] = RayAux(bg, k, 2.0 * dist_inter + dist_intra / 3.0, occ, orient, 0u);
+    aux[r] = RayAux(bg, k, 2.0 * dist_inter + dist_intra / 3.0, occ, orient, free_end);
 }
 
 @compute @workgroup_size(WG_SIZE)
@@ -212,6 +219,9 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         var d_sigma = smp.dt * (T * u - (total - prefix));
         if (smp.t < params.occlusion_end) {
             d_sigma += params.occlusion * smp.dt;
+        }
+        if (smp.t < side.free_end) {
+            d_sigma += params.free_space * smp.dt;
         }
         let d_field = vec4<f32>(w * g.rgb, d_sigma);
         let d_normal = vec4<f32>(d_n, 0.0);

@@ -199,7 +199,8 @@ struct Params {
     occlusion: f32,
     occlusion_end: f32,
     orientation: f32,
-    _pad: [u32; 2],
+    free_space: f32,
+    _pad: u32,
 }
 
 /// The forward pass's per-ray (and optional per-sample) outputs.
@@ -290,6 +291,7 @@ impl Renderer {
             occlusion: c.occlusion,
             occlusion_end: self.priors.occlusion_end,
             orientation: c.orientation,
+            free_space: c.free_space,
             ..Default::default()
         }
     }
@@ -408,6 +410,6 @@ mod wgsl_mirrors {
 
     #[test]
     fn rust_mirrors_match_their_wgsl_structs() {
-        crate::assert_wgsl_mirror!(Params, "render/composite.wgsl", "Params", [n_rays, bg_mode, seed, write_weights, background, t_threshold, accumulate, distortion, occlusion, occlusion_end, orientation]);
+        crate::assert_wgsl_mirror!(Params, "render/composite.wgsl", "Params", [n_rays, bg_mode, seed, write_weights, background, t_threshold, accumulate, distortion, occlusion, occlusion_end, orientation, free_space]);
     }
 }

@@ -10,6 +10,7 @@
 //! distortion  D = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 dt_i
 //! occlusion   O = sum_{i : t_i < t_occ} sigma_i dt_i
 //! orientation R = sum_i w_i max(0, <n_i, d_i>)^2
+//! free space  F = sum_{i : t_i < e_r} sigma_i dt_i       (e_r = RayAux::free_end)
 //! ```
 //! `D` is small when a ray's weight is one compact blob (a surface) and large when it is
 //! spread along the ray (fog, floaters in front of a surface). `O` is the optical
@@ -25,6 +26,7 @@
 //! L_occ  = lambda_occ  / n  sum_r O_r / (f S)      (the mean density over the range,
 //!                                                   FreeNeRF's mean over its first samples)
 //! L_ori  = lambda_ori  / n  sum_r R_r              (Ref-NeRF's mean over rays)
+//! L_free = lambda_free / n  sum_r F_r / S          (stereo free space)
 //! ```
 //! `n_i` is the field's unit analytic normal (outward: minus the normalised density
 //! gradient) and `d_i` the sample's unit ray direction, both in the field's space (NDC
@@ -33,6 +35,13 @@
 //! camera inside what the ray sees as surface: the penalty pushes density to rise along
 //! the ray up to the surface. Samples with a zero normal (zero gradient) pay nothing.
 //!
+//! `F` is space carving from the plane sweep of `crate::train::stereo`: where the
+//! training photographs agree on a depth `t*` at a ray's pixel, the caller sets `e_r =
+//! (1 - margin) t*` and the density in front of it is pushed out (0 elsewhere: no
+//! term). The stereo depth prior alone pulls only the depth given termination, which
+//! a fog centred on `t*` satisfies; this term leaves such fog nowhere to stand in
+//! front of the surface.
+//!
 //! # Gradients (in `composite.wgsl::backward`)
 //! With `W_<i, M_<i` the prefix sums of `w` and `w m` and `W_>i, M_>i` the suffix sums
 //! (taken from the forward's `opacity` and `depth`):
@@ -40,7 +49,7 @@
 //! per-sample `u_i` of the compositing backward, and `sum_i w_i dD/dw_i = 2 D` (`D` is
 //! homogeneous of degree 2 in the weights) joins its suffix-sum total; so the one
 //! front-to-back pass stays one pass. `dO/dsigma_i = dt_i` goes to the density gradient
-//! directly. `dR/dw_i = max(0, <n_i, d_i>)^2` joins `u_i` and `sum_i w_i dR/dw_i = R`
+//! directly, as does `dF/dsigma_i = dt_i`. `dR/dw_i = max(0, <n_i, d_i>)^2` joins `u_i` and `sum_i w_i dR/dw_i = R`
 //! the total (degree 1); `dR/dn_i = 2 w_i max(0, <n_i, d_i>) d_i` joins the normal
 //! gradient, which the field takes to its parameters through the normal's second-order
 //! backward (so the field must compute normals when the term is on).
@@ -113,6 +122,14 @@ pub struct PriorConfig {
     pub stereo_consistency: f32,
     /// The Charbonnier scale of the prior's relative depth error.
     pub stereo_delta: f32,
+    /// Weight of the stereo free-space prior (0: off): along each photometric ray whose
+    /// pixel the sweep gave a confirmed depth `t*`, the optical thickness in front of
+    /// `(1 - stereo_free_margin) t*` is penalised (space carving: the photographs agree
+    /// that nothing stands there). Runs the sweep as `stereo_depth` does (either or
+    /// both on); applied in the compositing backward, its value is not logged.
+    pub stereo_free_space: f32,
+    /// The free-space prior stops this fraction of the stereo depth short of it.
+    pub stereo_free_margin: f32,
 }
 
 impl Default for PriorConfig {
@@ -133,6 +150,8 @@ impl Default for PriorConfig {
             stereo_window: 2,
             stereo_consistency: 0.01,
             stereo_delta: 0.01,
+            stereo_free_space: 0.0,
+            stereo_free_margin: 0.05,
         }
     }
 }
@@ -147,6 +166,7 @@ impl PriorConfig {
             ("priors.opacity_entropy", self.opacity_entropy),
             ("priors.foreground_opacity", self.foreground_opacity),
             ("priors.stereo_depth", self.stereo_depth),
+            ("priors.stereo_free_space", self.stereo_free_space),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
@@ -162,7 +182,11 @@ impl PriorConfig {
                 self.stereo_planes, self.stereo_window
             ));
         }
-        for (name, v) in [("priors.stereo_consistency", self.stereo_consistency), ("priors.stereo_delta", self.stereo_delta)] {
+        for (name, v) in [
+            ("priors.stereo_consistency", self.stereo_consistency),
+            ("priors.stereo_delta", self.stereo_delta),
+            ("priors.stereo_free_margin", self.stereo_free_margin),
+        ] {
             if !(v.is_finite() && v > 0.0 && v < 1.0) {
                 return Err(format!("{name} must be a fraction in (0, 1), got {v}"));
             }
@@ -187,6 +211,11 @@ impl PriorConfig {
         if step >= self.opacity_entropy_start { self.opacity_entropy } else { 0.0 }
     }
 
+    /// Whether the plane sweep runs: the stereo depth or free-space prior is on.
+    pub fn stereo_on(&self) -> bool {
+        self.stereo_depth > 0.0 || self.stereo_free_space > 0.0
+    }
+
     /// Whether any term is on.
     pub fn active(&self) -> bool {
         self.distortion > 0.0 || self.occlusion > 0.0 || self.orientation > 0.0
@@ -206,6 +235,8 @@ impl PriorConfig {
             occlusion_end: if self.occlusion > 0.0 { near + range } else { f32::MIN },
             lambda_orientation: self.orientation,
             orientation_scale: 1.0 / n,
+            lambda_free_space: self.stereo_free_space,
+            free_space_scale: 1.0 / (n * span),
         }
     }
 }
@@ -223,6 +254,10 @@ pub struct RayPriors {
     pub occlusion_end: f32,
     pub lambda_orientation: f32,
     pub orientation_scale: f32,
+    /// The stereo free-space prior: `lambda_free_space free_space_scale sum_r F_r`, `F`
+    /// over the samples before each ray's `RayAux::free_end`.
+    pub lambda_free_space: f32,
+    pub free_space_scale: f32,
 }
 
 impl Default for RayPriors {
@@ -235,6 +270,8 @@ impl Default for RayPriors {
             occlusion_end: f32::MIN,
             lambda_orientation: 0.0,
             orientation_scale: 0.0,
+            lambda_free_space: 0.0,
+            free_space_scale: 0.0,
         }
     }
 }
@@ -246,6 +283,8 @@ pub struct PriorTerms {
     pub distortion: f32,
     pub occlusion: f32,
     pub orientation: f32,
+    /// Only as a coefficient (the kernels do not store `F`): 0 in [`RayPriors::losses`].
+    pub free_space: f32,
 }
 
 impl RayPriors {
@@ -255,6 +294,7 @@ impl RayPriors {
             distortion: self.lambda_distortion * self.distortion_scale,
             occlusion: self.lambda_occlusion * self.occlusion_scale,
             orientation: self.lambda_orientation * self.orientation_scale,
+            free_space: self.lambda_free_space * self.free_space_scale,
         }
     }
 
@@ -276,6 +316,7 @@ impl RayPriors {
             distortion: (self.distortion_scale as f64 * d) as f32,
             occlusion: (self.occlusion_scale as f64 * o) as f32,
             orientation: (self.orientation_scale as f64 * r) as f32,
+            free_space: 0.0,
         }
     }
 }

@@ -129,7 +129,20 @@ struct Forward {
 }
 
 fn run_forward(gpu: &Gpu, renderer: &Renderer, up: &Uploaded, seed: u32) -> Forward {
+    run_forward_with_free_ends(gpu, renderer, up, seed, &[])
+}
+
+/// The forward with the stereo free-space prior's ends of the first `free_end.len()`
+/// rays written into aux first (as the trainer does).
+fn run_forward_with_free_ends(gpu: &Gpu, renderer: &Renderer, up: &Uploaded, seed: u32, free_end: &[f32]) -> Forward {
     let out = RenderOutputs::new(gpu, up.batch.n_rays, Some(up.batch.capacity)).unwrap();
+    if !free_end.is_empty() {
+        let mut rows = vec![RayAux::default(); up.batch.n_rays as usize];
+        for (row, &end) in rows.iter_mut().zip(free_end) {
+            row.free_end = end;
+        }
+        out.aux.write(gpu, &rows);
+    }
     // Sentinels: samples outside every range must keep them.
     out.weights.as_ref().unwrap().write(gpu, &vec![-1.0; up.batch.capacity as usize]);
     let mut enc = gpu.encoder();
@@ -418,15 +431,17 @@ fn background_shows_only_through_transparency() {
 }
 
 /// `dL/dx` by central differences of the `f64` reference, for one ray; the loss is
-/// `<g, output> + c_d D + c_o O + c_r R` with the priors' `(c_d, c_o, occlusion_end, c_r)`.
-fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 4], i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
+/// `<g, output> + c_d D + c_o O + c_r R + c_f F` with the priors' `(c_d, c_o,
+/// occlusion_end, c_r, c_f, free_end)` (`F`: `O` over the ray's free-space range).
+fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 6], i: usize, set: &dyn Fn(&mut RefSample, f64), x: f64) -> Option<f64> {
     let h = 1e-6 * x.abs().max(1.0);
     let eval = |v: f64| {
         let mut ray = ray.to_vec();
         set(&mut ray[i], v);
         let r = reference::composite(&ray, bg, th);
         let (d, o, ori) = reference::ray_priors(&ray, &r, pri[2]);
-        (r.dot(g) + pri[0] * d + pri[1] * o + pri[3] * ori, r.n_contrib)
+        let free = reference::ray_priors(&ray, &r, pri[5]).1;
+        (r.dot(g) + pri[0] * d + pri[1] * o + pri[3] * ori + pri[4] * free, r.n_contrib)
     };
     let (lp, kp) = eval(x + h);
     let (lm, km) = eval(x - h);
@@ -435,10 +450,11 @@ fn fd(ray: &[RefSample], bg: [f64; 3], th: f64, g: &RayOutput, pri: [f64; 4], i:
 }
 
 fn check_backward_fd(cfg: RenderConfig, seed: u64) {
-    check_backward_fd_with(cfg, RayPriors::default(), seed);
+    check_backward_fd_with(cfg, RayPriors::default(), &[], seed);
 }
 
-fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
+/// `free_end`: the stereo free-space prior's end per ray (missing: 0, no range).
+fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, free_end: &[f32], seed: u64) {
     let gpu = test_gpu(false);
     let mut rng = SplitMix64::new(seed);
     let h = random_batch(&mut rng, 300, 48);
@@ -446,8 +462,7 @@ fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
     let mut renderer = Renderer::new(&gpu, cfg).unwrap();
     renderer.set_priors(priors);
     let c = priors.coefficients();
-    let pri = [c.distortion as f64, c.occlusion as f64, priors.occlusion_end as f64, c.orientation as f64];
-    let fwd = run_forward(&gpu, &renderer, &up, 5);
+    let fwd = run_forward_with_free_ends(&gpu, &renderer, &up, 5, free_end);
     let d_rays: Vec<RayOutput> = (0..h.n_rays())
         .map(|_| RayOutput {
             rgb: [rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0), rng.range_f32(-1.0, 1.0)],
@@ -471,6 +486,9 @@ fn check_backward_fd_with(cfg: RenderConfig, priors: RayPriors, seed: u64) {
         let ray = h.ray(r);
         let bg = bgs[r].map(|v| v as f64);
         let g = &d_rays[r];
+        let end = free_end.get(r).copied().unwrap_or(0.0);
+        assert_eq!(fwd.aux[r].free_end, end, "ray {r}: the forward keeps the free-space end");
+        let pri = [c.distortion as f64, c.occlusion as f64, priors.occlusion_end as f64, c.orientation as f64, c.free_space as f64, end as f64];
         let gv = |a: [f32; 3]| a.map(|v| v as f64);
         let (grgb, gn) = (gv(g.rgb), gv(g.normal));
         // The scale of the suffix-sum cancellation.
@@ -553,9 +571,55 @@ fn backward_with_priors_matches_finite_differences() {
         occlusion_end: 1.2,
         lambda_orientation: 1.0,
         orientation_scale: 0.5,
+        ..Default::default()
     };
-    check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4, ..Default::default() }, priors, 14);
-    check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4, ..Default::default() }, priors, 15);
+    check_backward_fd_with(RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4, ..Default::default() }, priors, &[], 14);
+    check_backward_fd_with(RenderConfig { background: Background::Random, transmittance_threshold: 1e-4, ..Default::default() }, priors, &[], 15);
+}
+
+#[test]
+fn backward_with_the_stereo_free_space_matches_finite_differences() {
+    // The free-space prior alone and beside the occlusion prior, with ends per ray: none
+    // (0), inside the rays' t (0.1 .. ~4) and past every sample; the rays after the
+    // listed ends get none.
+    let free_end: Vec<f32> = (0..250).map(|r| [0.0, 0.7, 1.9, 3.1, 100.0][r % 5]).collect();
+    let alone = RayPriors { lambda_free_space: 1.0, free_space_scale: 0.4, ..Default::default() };
+    let cfg = RenderConfig { background: Background::Color { rgb: [0.2, 0.4, 0.6] }, transmittance_threshold: 1e-4, ..Default::default() };
+    check_backward_fd_with(cfg, alone, &free_end, 31);
+    let both = RayPriors { lambda_occlusion: 1.0, occlusion_scale: 0.3, occlusion_end: 1.2, ..alone };
+    check_backward_fd_with(cfg, both, &free_end, 32);
+}
+
+#[test]
+fn the_free_space_prior_pushes_out_only_the_density_in_front_of_its_end() {
+    // With every other gradient zero, dL/dsigma_i is c_f dt_i before the ray's end and
+    // 0 from it on: the prior carves the space in front of the stereo depth and leaves
+    // the surface behind it alone.
+    let gpu = test_gpu(false);
+    let h = random_batch(&mut SplitMix64::new(33), 120, 24);
+    let up = upload(&gpu, &h);
+    let mut renderer = Renderer::new(&gpu, RenderConfig::default()).unwrap();
+    let c_f = 0.25f32;
+    renderer.set_priors(RayPriors { lambda_free_space: 1.0, free_space_scale: c_f, ..Default::default() });
+    let free_end: Vec<f32> = (0..h.n_rays()).map(|r| if r % 2 == 0 { 1.5 } else { 0.0 }).collect();
+    let fwd = run_forward_with_free_ends(&gpu, &renderer, &up, 0, &free_end);
+    let zero = vec![RayOutput { rgb: [0.0; 3], opacity: 0.0, normal: [0.0; 3], depth: 0.0 }; h.n_rays() as usize];
+    let grads = run_backward(&gpu, &renderer, &up, &fwd, &zero, &sentinel_grads(h.density.len()), false);
+    let (mut inside, mut outside) = (0, 0);
+    for r in 0..h.n_rays() as usize {
+        let start = h.ranges[r].start as usize;
+        for (i, s) in h.ray(r).iter().enumerate().take(fwd.aux[r].n_contrib as usize) {
+            let got = grads.density[start + i];
+            if (s.t as f32) < free_end[r] {
+                assert!((got - c_f * s.dt as f32).abs() <= 1e-6, "ray {r} sample {i}: {got} vs {}", c_f * s.dt as f32);
+                inside += 1;
+            } else {
+                assert_eq!(got, 0.0, "ray {r} sample {i} at t {} (end {})", s.t, free_end[r]);
+                outside += 1;
+            }
+        }
+    }
+    assert!(inside > 200 && outside > 200, "{inside} samples in front of their ends, {outside} behind");
 }
 
 #[test]
@@ -652,7 +716,7 @@ fn early_termination_is_the_same_forward_and_backward() {
         assert_eq!(zero, i >= 4, "sample {i}: {:?} {:?}", grads.density[i], grads.rgb[i]);
     }
     // Consistent with the truncated reference: dL/dsigma of sample 5 is 0 there too.
-    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, [0.0, 0.0, f64::MIN, 0.0], 5, &|s, v| s.sigma = v, 3.0).unwrap();
+    let fd5 = fd(&h.ray(0), [0.0; 3], 1e-4, &g, [0.0, 0.0, f64::MIN, 0.0, 0.0, 0.0], 5, &|s, v| s.sigma = v, 3.0).unwrap();
     assert_eq!(fd5, 0.0);
 }
 

@@ -409,7 +409,7 @@ impl Model {
                 let mut padded = chunk.to_vec();
                 padded.resize(RENDER_CHUNK as usize, GpuRay::default());
                 bufs.rays.write(gpu, &padded);
-                self.write_backgrounds(gpu, &padded, &bufs.render_out.aux);
+                self.write_ray_inputs(gpu, &padded, &[], &bufs.render_out.aux);
                 self.sample_and_shade(gpu, &bufs, None, normals)?;
                 let mut enc = gpu.encoder();
                 self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
@@ -423,15 +423,24 @@ impl Model {
         result
     }
 
-    /// With a learned background, writes each ray's background colour into `aux`
-    /// (what the renderer composites behind it); nothing otherwise.
-    pub(super) fn write_backgrounds(&self, gpu: &Gpu, rays: &[GpuRay], aux: &GpuBuffer<crate::layout::RayAux>) {
-        if let Some(bg) = &self.background {
-            let dirs = bg.ray_dirs(rays);
-            let rows: Vec<crate::layout::RayAux> =
-                bg.colors(&dirs).into_iter().map(|background| crate::layout::RayAux { background, ..Default::default() }).collect();
-            aux.write(gpu, &rows);
+    /// Writes the renderer's per-ray inputs into `aux`: with a learned background each
+    /// ray's background colour (what the renderer composites behind it), and the
+    /// stereo free-space prior's end of the first `free_end.len()` rays; nothing when
+    /// there is neither.
+    pub(super) fn write_ray_inputs(&self, gpu: &Gpu, rays: &[GpuRay], free_end: &[f32], aux: &GpuBuffer<crate::layout::RayAux>) {
+        if self.background.is_none() && free_end.is_empty() {
+            return;
         }
+        let mut rows = vec![crate::layout::RayAux::default(); rays.len()];
+        if let Some(bg) = &self.background {
+            for (row, background) in rows.iter_mut().zip(bg.colors(&bg.ray_dirs(rays))) {
+                row.background = background;
+            }
+        }
+        for (row, &end) in rows.iter_mut().zip(free_end) {
+            row.free_end = end;
+        }
+        aux.write(gpu, &rows);
     }
 
     /// Post-activation densities of the field at `points` (field space: world, or NDC

@@ -222,7 +222,7 @@ impl Pipeline {
         } else {
             None
         };
-        let stereo = if config.priors.stereo_depth > 0.0 {
+        let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
             let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency };
             let maps = stereo::sweep(scene, settings).map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
@@ -369,6 +369,7 @@ impl Pipeline {
         if let Some((term, position, _)) = self.reprojection_at(plan) {
             term.source.write(gpu, &batch.views.iter().map(|&v| position[v as usize]).collect::<Vec<_>>());
         }
+        let mut free_end = Vec::new();
         if let Some((term, maps)) = &self.stereo {
             let at = |(&v, &p): (&u32, &u32)| match maps[v as usize].as_ref().map(|m| m[p as usize]) {
                 Some(t) if t > 0.0 => [t, 1.0],
@@ -376,6 +377,10 @@ impl Pipeline {
             };
             let mut targets: Vec<[f32; 2]> = batch.views.iter().zip(&batch.pixels).map(at).collect();
             targets.resize(self.n as usize, [0.0; 2]);
+            if config.priors.stereo_free_space > 0.0 {
+                let keep = 1.0 - config.priors.stereo_free_margin;
+                free_end = targets.iter().map(|&[t, c]| if c > 0.0 { keep * t } else { 0.0 }).collect();
+            }
             term.targets.write(gpu, &targets);
         }
         if let Some((alpha, _)) = &self.random_background {
@@ -399,8 +404,8 @@ impl Pipeline {
         }
         self.bufs.rays.write(gpu, &rays);
         self.targets.write(gpu, &targets);
-        if self.learned_background() {
-            model.write_backgrounds(gpu, &rays, &self.bufs.render_out.aux);
+        if self.learned_background() || !free_end.is_empty() {
+            model.write_ray_inputs(gpu, &rays, &free_end, &self.bufs.render_out.aux);
         }
     }
 
@@ -433,7 +438,7 @@ impl Pipeline {
             foreground_tolerance: priors.foreground_tolerance,
         };
         self.photometric.record(enc, rays_out, &self.targets, &bufs.render_out.aux, recomposite.as_ref(), &self.d_rays, n_all, n as f32, plan.lambda_color, opacity);
-        if let Some((term, _)) = &self.stereo {
+        if let Some((term, _)) = self.stereo.as_ref().filter(|_| priors.stereo_depth > 0.0) {
             term.record(enc, rays_out, &self.targets, &self.d_rays, n, priors.stereo_depth, priors.stereo_delta);
         }
         if let Some(w) = &plan.reg {

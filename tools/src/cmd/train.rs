@@ -224,7 +224,7 @@ fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow
     if config.reg.reprojection_on() && config.train.batch == edgenerf::train::BatchKind::Patches {
         edgenerf::train::pipeline::check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
     }
-    if config.priors.stereo_depth > 0.0 {
+    if config.priors.stereo_on() {
         edgenerf::train::stereo::check_scene(scene).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
     Ok(())
