@@ -130,6 +130,17 @@ pub struct PriorConfig {
     pub stereo_free_space: f32,
     /// The free-space prior stops this fraction of the stereo depth short of it.
     pub stereo_free_margin: f32,
+    /// Edge-aware fill of the sweep's gaps, in pixels (0: off): a pixel without a
+    /// confirmed depth gets the Gaussian-weighted mean (sigma half this radius) of the
+    /// confirmed depths within this radius that lie in its own region of the view's edge
+    /// mask (non-edge pixels joined through non-edge pixels), with the weight's share
+    /// of confirmed pixels as its confidence. The free-space prior reads confirmed
+    /// depths only.
+    pub stereo_fill: u32,
+    /// The sweep's uniqueness check (1: off): a pixel's winning depth is kept only
+    /// where its window cost is below this fraction of the least cost of the planes
+    /// more than two planes away (flat colour and repeated texture give no depth).
+    pub stereo_uniqueness: f32,
 }
 
 impl Default for PriorConfig {
@@ -152,6 +163,8 @@ impl Default for PriorConfig {
             stereo_delta: 0.01,
             stereo_free_space: 0.0,
             stereo_free_margin: 0.05,
+            stereo_fill: 0,
+            stereo_uniqueness: 1.0,
         }
     }
 }
@@ -176,10 +189,10 @@ impl PriorConfig {
         if !(tol.is_finite() && tol > 0.0) {
             return Err(format!("priors.foreground_tolerance must be a colour difference > 0, got {tol}"));
         }
-        if !(2..=4096).contains(&self.stereo_planes) || self.stereo_window > 32 {
+        if !(2..=4096).contains(&self.stereo_planes) || self.stereo_window > 32 || self.stereo_fill > 64 {
             return Err(format!(
-                "priors.stereo_planes = {} must be 2 to 4096 and priors.stereo_window = {} at most 32",
-                self.stereo_planes, self.stereo_window
+                "priors.stereo_planes = {} must be 2 to 4096, priors.stereo_window = {} and priors.stereo_fill = {} at most 32 and 64 pixels",
+                self.stereo_planes, self.stereo_window, self.stereo_fill
             ));
         }
         for (name, v) in [
@@ -190,6 +203,10 @@ impl PriorConfig {
             if !(v.is_finite() && v > 0.0 && v < 1.0) {
                 return Err(format!("{name} must be a fraction in (0, 1), got {v}"));
             }
+        }
+        let u = self.stereo_uniqueness;
+        if !(u.is_finite() && u > 0.0 && u <= 1.0) {
+            return Err(format!("priors.stereo_uniqueness must be in (0, 1] (1: off), got {u}"));
         }
         let f = self.occlusion_range;
         if !(f.is_finite() && f > 0.0 && f <= 1.0) {
@@ -345,6 +362,8 @@ mod tests {
         assert!(PriorConfig { stereo_depth: -0.1, ..on }.validate().unwrap_err().contains("priors.stereo_depth"));
         assert!(PriorConfig { stereo_planes: 1, ..on }.validate().unwrap_err().contains("priors.stereo_planes"));
         assert!(PriorConfig { stereo_window: 33, ..on }.validate().unwrap_err().contains("priors.stereo_window"));
+        assert!(PriorConfig { stereo_fill: 65, ..on }.validate().unwrap_err().contains("priors.stereo_fill"));
+        assert!(PriorConfig { stereo_uniqueness: 0.0, ..on }.validate().unwrap_err().contains("priors.stereo_uniqueness"));
         for bad in [0.0, 1.0, f32::NAN] {
             assert!(PriorConfig { stereo_consistency: bad, ..on }.validate().unwrap_err().contains("priors.stereo_consistency"));
             assert!(PriorConfig { stereo_delta: bad, ..on }.validate().unwrap_err().contains("priors.stereo_delta"));

@@ -365,7 +365,7 @@ impl Trainer {
     fn with_model(gpu: Gpu, scene: Scene, model: Model, masks: Option<Vec<EdgeMask>>) -> Result<Trainer, TrainError> {
         let config = &model.config;
         let adam = Adam::for_groups(&gpu, &model.field.params(), config.optim.adam)?;
-        let pipeline = Pipeline::new(&gpu, &scene, &model, config)?;
+        let pipeline = Pipeline::new(&gpu, &scene, &model, config, masks.as_deref())?;
         let tv_poses = if pipeline.tv_rays() > 0 {
             let r = &config.regnerf;
             random_poses::random_poses(&scene, r.pose_kind_for(&scene), r.n_poses, config.train.seed)
@@ -391,10 +391,16 @@ impl Trainer {
         &self.model.config
     }
 
-    /// With the stereo depth prior: the fraction of the training views' pixels the
-    /// plane sweep gave a depth ([`Pipeline::stereo_coverage`]).
-    pub fn stereo_coverage(&self) -> Option<f64> {
+    /// With the stereo priors: the fractions of the training views' pixels the plane
+    /// sweep gave a confirmed and a filled depth ([`Pipeline::stereo_coverage`]).
+    pub fn stereo_coverage(&self) -> Option<(f64, f64)> {
         self.pipeline.stereo_coverage()
+    }
+
+    /// The stereo priors' targets `[depth, confidence]` per scene view and pixel
+    /// ([`stereo::StereoTargets`]), when one of them is on.
+    pub fn stereo_targets(&self) -> Option<&stereo::StereoTargets> {
+        self.pipeline.stereo_targets()
     }
 
     /// Steps done so far.

@@ -59,6 +59,7 @@ use super::model::{BatchBuffers, Model};
 use super::profile::{Stage, StageTimes, end_recorded_stage};
 use super::rays::PixelBatch;
 use super::stereo::{self, StereoTargets, SweepSettings};
+use crate::edges::EdgeMask;
 
 /// What a step asks of the pipeline besides its batch: the loss weights in effect at
 /// the step and its seeds.
@@ -201,7 +202,7 @@ pub struct Pipeline {
 impl Pipeline {
     /// The pipeline of a run with `config` on `scene` whose model is `model` (its render
     /// settings are the training renderer's).
-    pub fn new(gpu: &Gpu, scene: &Scene, model: &Model, config: &RunConfig) -> Result<Pipeline, TrainError> {
+    pub fn new(gpu: &Gpu, scene: &Scene, model: &Model, config: &RunConfig, masks: Option<&[EdgeMask]>) -> Result<Pipeline, TrainError> {
         let n = config.train.rays_per_batch;
         let r = &config.regnerf;
         let n_tv = r.patches(n) * r.patch_size * r.patch_size;
@@ -224,8 +225,14 @@ impl Pipeline {
         };
         let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
-            let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency };
-            let maps = stereo::sweep(scene, settings).map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
+            let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness };
+            // The fill reads the edge masks; a run whose regularizers do not read them
+            // gets them here.
+            let computed = match masks {
+                None if p.stereo_fill > 0 => Some(crate::edges::edge_masks(scene, &scene.split.train, &config.edges)?),
+                _ => None,
+            };
+            let maps = stereo::sweep(scene, settings, masks.or(computed.as_deref())).map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
             Some((StereoDepth::new(gpu, n)?, maps))
         } else {
             None
@@ -256,12 +263,20 @@ impl Pipeline {
         })
     }
 
-    /// With the stereo depth prior: the fraction of the training views' pixels the
-    /// sweep gave a depth.
-    pub fn stereo_coverage(&self) -> Option<f64> {
+    /// With the stereo priors: the fractions of the training views' pixels the sweep
+    /// gave a confirmed depth and a filled one (`priors.stereo_fill`).
+    pub fn stereo_coverage(&self) -> Option<(f64, f64)> {
         let (_, maps) = self.stereo.as_ref()?;
-        let (kept, all) = maps.iter().flatten().fold((0usize, 0usize), |(k, a), m| (k + m.iter().filter(|&&t| t > 0.0).count(), a + m.len()));
-        Some(kept as f64 / all.max(1) as f64)
+        let targets = maps.iter().flatten().flatten();
+        let all = targets.clone().count().max(1) as f64;
+        let confirmed = targets.clone().filter(|t| t[1] >= 1.0).count() as f64;
+        let filled = targets.filter(|t| t[1] > 0.0 && t[1] < 1.0).count() as f64;
+        Some((confirmed / all, filled / all))
+    }
+
+    /// The sweep's targets per scene view, when a stereo prior is on.
+    pub fn stereo_targets(&self) -> Option<&StereoTargets> {
+        self.stereo.as_ref().map(|(_, maps)| maps)
     }
 
     /// Random-pose rays a batch carries after its photometric rays (0: none).
@@ -371,15 +386,13 @@ impl Pipeline {
         }
         let mut free_end = Vec::new();
         if let Some((term, maps)) = &self.stereo {
-            let at = |(&v, &p): (&u32, &u32)| match maps[v as usize].as_ref().map(|m| m[p as usize]) {
-                Some(t) if t > 0.0 => [t, 1.0],
-                _ => [0.0, 0.0],
-            };
+            let at = |(&v, &p): (&u32, &u32)| maps[v as usize].as_ref().map_or([0.0, 0.0], |m| m[p as usize]);
             let mut targets: Vec<[f32; 2]> = batch.views.iter().zip(&batch.pixels).map(at).collect();
             targets.resize(self.n as usize, [0.0; 2]);
             if config.priors.stereo_free_space > 0.0 {
+                // Confirmed depths only: a filled one is a guess.
                 let keep = 1.0 - config.priors.stereo_free_margin;
-                free_end = targets.iter().map(|&[t, c]| if c > 0.0 { keep * t } else { 0.0 }).collect();
+                free_end = targets.iter().map(|&[t, c]| if c >= 1.0 { keep * t } else { 0.0 }).collect();
             }
             term.targets.write(gpu, &targets);
         }

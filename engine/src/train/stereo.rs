@@ -16,12 +16,25 @@
 //! blobs; 19-27 % of the object's pixels pass the check at one plane's tolerance
 //! (docs/results/dtu.md).
 //!
-//! Invariants: a target is 0 (none) or a depth inside its ray's span in the box;
-//! NDC scenes are refused (their rays do not meet in world space as the sweep assumes).
+//! With `uniqueness` below 1 (`priors.stereo_uniqueness`), a winner whose cost is not
+//! clearly below that of every plane more than two planes away is dropped before the
+//! check (SGBM's uniqueness ratio): flat colour, where every depth matches, and
+//! repeated texture, where several do, give no depth.
+//!
+//! With `fill` (`priors.stereo_fill`), the gaps are filled from the confirmed depths
+//! around them inside the same region of the view's edge mask (the paper's premise:
+//! depth is smooth between edges): a Gaussian-weighted mean over a `fill`-pixel radius,
+//! with the weight's share of confirmed pixels as the target's confidence (a confirmed
+//! depth has confidence 1). Edge pixels are neither filled nor read by a fill.
+//!
+//! Invariants: a target is `[0, 0]` (none) or `[t, c]` with `t` inside its ray's span in
+//! the box and `c` in `(0, 1]` (1 exactly for a confirmed depth); NDC scenes are refused
+//! (their rays do not meet in world space as the sweep assumes).
 
 use glam::{Mat4, Vec3};
 
 use crate::data::Scene;
+use crate::edges::EdgeMask;
 
 use super::rays::to_gpu_ray;
 
@@ -31,11 +44,21 @@ pub struct SweepSettings {
     pub planes: u32,
     pub window: u32,
     pub consistency: f32,
+    /// Radius of the edge-aware fill in pixels (0: off).
+    pub fill: u32,
+    /// The uniqueness check (1: off): a winner is kept only where its cost is below
+    /// this fraction of the least cost more than [`UNIQUE_APART`] planes away.
+    pub uniqueness: f32,
 }
 
-/// Per scene view (index into `Scene::views`): the stereo depth of each pixel (row
-/// major, 0 = none) for training views with another training view, `None` otherwise.
-pub type StereoTargets = Vec<Option<Vec<f32>>>;
+/// Planes within this many of the winner's count as the same minimum in the uniqueness
+/// check.
+pub const UNIQUE_APART: u32 = 2;
+
+/// Per scene view (index into `Scene::views`): the stereo target `[depth, confidence]`
+/// of each pixel (row major, `[0, 0]` = none) for training views with another training
+/// view, `None` otherwise.
+pub type StereoTargets = Vec<Option<Vec<[f32; 2]>>>;
 
 /// Refuses a scene the sweep cannot run on (NDC rays), with what to do; from the
 /// cameras alone, so `train` can say so before it spends time on edge maps.
@@ -46,24 +69,111 @@ pub fn check_scene(scene: &Scene) -> Result<(), String> {
     Ok(())
 }
 
-/// The sweep of every training view (see the module doc).
-pub fn sweep(scene: &Scene, settings: SweepSettings) -> Result<StereoTargets, String> {
+/// The sweep of every training view (see the module doc); `masks` are the training
+/// views' edge masks in `scene.split.train` order, which the fill needs.
+pub fn sweep(scene: &Scene, settings: SweepSettings, masks: Option<&[EdgeMask]>) -> Result<StereoTargets, String> {
     check_scene(scene)?;
     let train = &scene.split.train;
+    if settings.fill > 0 && masks.is_none_or(|m| m.len() != train.len()) {
+        return Err("priors.stereo_fill needs the training views' edge masks".into());
+    }
     let w2c: Vec<Mat4> = scene.views.iter().map(|v| v.camera.w2c()).collect();
     let winners: Vec<Option<Winners>> = (0..scene.views.len())
         .map(|v| if train.contains(&v) && train.len() > 1 { winners(scene, v, &w2c, settings) } else { None })
         .collect();
     Ok((0..scene.views.len())
-        .map(|v| winners[v].as_ref().map(|win| consistent(scene, v, win, &winners, &w2c, settings.consistency)))
+        .map(|v| {
+            let win = winners[v].as_ref()?;
+            let depth = consistent(scene, v, win, &winners, &w2c, settings.consistency);
+            let mask = masks.and_then(|m| train.iter().position(|&t| t == v).map(|i| &m[i]));
+            Some(match mask {
+                Some(mask) if settings.fill > 0 => fill(&depth, &win.span, mask, settings.fill),
+                _ => depth.iter().map(|&t| if t > 0.0 { [t, 1.0] } else { [0.0, 0.0] }).collect(),
+            })
+        })
         .collect())
 }
 
-/// One view's winner-take-all depths: per pixel the ray's origin, direction and depth
-/// (0 where the ray misses the box).
+/// Confirmed depths `depth` (0: none) of one view, their gaps filled from the confirmed
+/// depths within `radius` pixels in the same region of `mask` (see the module doc);
+/// `span` is each pixel's ray span in the box (`None`: it misses the box).
+fn fill(depth: &[f32], span: &[Option<(f32, f32)>], mask: &EdgeMask, radius: u32) -> Vec<[f32; 2]> {
+    let (w, h) = (mask.width as usize, mask.height as usize);
+    assert_eq!(depth.len(), w * h, "an edge mask per view at the view's size");
+    let region = regions(mask);
+    let r = radius as i64;
+    let sigma = (radius as f32 / 2.0).max(0.5);
+    let kernel: Vec<f32> = (-r..=r).flat_map(|dy| (-r..=r).map(move |dx| (dx, dy))).map(|(dx, dy)| (-((dx * dx + dy * dy) as f32) / (2.0 * sigma * sigma)).exp()).collect();
+    (0..w * h)
+        .map(|p| {
+            if depth[p] > 0.0 {
+                return [depth[p], 1.0];
+            }
+            let (Some((lo, hi)), Some(label)) = (span[p], region[p]) else { return [0.0, 0.0] };
+            let (x, y) = ((p % w) as i64, (p / w) as i64);
+            let (mut num, mut confirmed, mut all) = (0.0f32, 0.0f32, 0.0f32);
+            for dy in -r..=r {
+                let yy = y + dy;
+                if yy < 0 || yy >= h as i64 {
+                    continue;
+                }
+                for dx in -r..=r {
+                    let xx = x + dx;
+                    if xx < 0 || xx >= w as i64 {
+                        continue;
+                    }
+                    let q = yy as usize * w + xx as usize;
+                    if region[q] != Some(label) {
+                        continue;
+                    }
+                    let g = kernel[((dy + r) * (2 * r + 1) + dx + r) as usize];
+                    all += g;
+                    if depth[q] > 0.0 {
+                        confirmed += g;
+                        num += g * depth[q];
+                    }
+                }
+            }
+            let t = if confirmed > 0.0 { num / confirmed } else { 0.0 };
+            if t >= lo && t <= hi && t > 0.0 { [t, confirmed / all] } else { [0.0, 0.0] }
+        })
+        .collect()
+}
+
+/// The connected regions (4-neighbours) of a mask's non-edge pixels: a label per pixel,
+/// `None` on edges.
+fn regions(mask: &EdgeMask) -> Vec<Option<u32>> {
+    let (w, h) = (mask.width as usize, mask.height as usize);
+    let mut label = vec![None; w * h];
+    let mut next = 0u32;
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if mask.non_edge[start] == 0 || label[start].is_some() {
+            continue;
+        }
+        label[start] = Some(next);
+        stack.push(start);
+        while let Some(p) = stack.pop() {
+            let (x, y) = (p % w, p / w);
+            let neighbours = [(x > 0).then(|| p - 1), (x + 1 < w).then(|| p + 1), (y > 0).then(|| p - w), (y + 1 < h).then(|| p + w)];
+            for q in neighbours.into_iter().flatten() {
+                if mask.non_edge[q] != 0 && label[q].is_none() {
+                    label[q] = Some(next);
+                    stack.push(q);
+                }
+            }
+        }
+        next += 1;
+    }
+    label
+}
+
+/// One view's winner-take-all depths: per pixel the ray's origin, direction, span in
+/// the box and depth (0 where the ray misses the box).
 struct Winners {
     origin: Vec<Vec3>,
     dir: Vec<Vec3>,
+    span: Vec<Option<(f32, f32)>>,
     depth: Vec<f32>,
 }
 
@@ -88,8 +198,12 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
     let others: Vec<usize> = scene.split.train.iter().copied().filter(|&j| j != s).collect();
     let planes = settings.planes.max(2);
     let mut best = vec![f32::INFINITY; n];
+    let mut best_plane = vec![0u32; n];
     let mut depth = vec![0.0f32; n];
     let mut cost = vec![0.0f32; n];
+    // Every plane's window cost, kept only for the uniqueness check (planes x pixels).
+    let unique = settings.uniqueness < 1.0;
+    let mut volume = if unique { Vec::with_capacity(planes as usize * n) } else { Vec::new() };
     let own: Vec<[f32; 3]> = (0..n as u32).map(|p| view.image.get(p % w, p / w)).collect();
     for k in 0..planes {
         let f = k as f32 / (planes - 1) as f32;
@@ -111,11 +225,24 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
             let inside = span[p].is_some_and(|(lo, hi)| t >= lo && t <= hi);
             if inside && mean[p] < best[p] {
                 best[p] = mean[p];
+                best_plane[p] = k;
                 depth[p] = t;
             }
         }
+        if unique {
+            volume.extend(mean.iter().enumerate().map(|(p, &c)| if span[p].is_some_and(|(lo, hi)| t >= lo && t <= hi) { c } else { f32::INFINITY }));
+        }
     }
-    Some(Winners { origin, dir, depth })
+    if unique {
+        // The least cost more than UNIQUE_APART planes from the winner's.
+        for p in 0..n {
+            let second = (0..planes).filter(|&k| k.abs_diff(best_plane[p]) > UNIQUE_APART).map(|k| volume[k as usize * n + p]).fold(f32::INFINITY, f32::min);
+            if depth[p] > 0.0 && best[p] >= settings.uniqueness * second {
+                depth[p] = 0.0;
+            }
+        }
+    }
+    Some(Winners { origin, dir, span, depth })
 }
 
 /// View `s`'s winners that another view's winners confirm (0 elsewhere).
@@ -227,14 +354,15 @@ mod tests {
     #[test]
     fn the_sweep_finds_a_textured_floor_and_keeps_only_confirmed_depths() {
         let scene = floor_scene();
-        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02 };
-        let targets = sweep(&scene, settings).unwrap();
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let targets = sweep(&scene, settings, None).unwrap();
         let depth = targets[0].as_ref().unwrap();
         let cam = &scene.views[0].camera;
         let (mut kept, mut close) = (0, 0);
         for y in 0..cam.height {
             for x in 0..cam.width {
-                let t = depth[(y * cam.width + x) as usize];
+                let [t, c] = depth[(y * cam.width + x) as usize];
+                assert!(c == 0.0 || c == 1.0, "without the fill a target is confirmed or none");
                 if t > 0.0 {
                     kept += 1;
                     let r = scene.ray(0, x, y);
@@ -248,9 +376,98 @@ mod tests {
         assert!(close as f32 > 0.95 * kept as f32, "confirmed depths lie on the floor: {close} of {kept}");
         // A view alone has nothing to compare with; NDC scenes are refused.
         let alone = Scene { split: Split { train: vec![0], test: vec![1, 2] }, ..scene.clone() };
-        assert!(sweep(&alone, settings).unwrap().iter().all(Option::is_none));
+        assert!(sweep(&alone, settings, None).unwrap().iter().all(Option::is_none));
+        assert!(sweep(&scene, SweepSettings { fill: 4, ..settings }, None).unwrap_err().contains("edge masks"));
         let ndc = Scene { ndc: Some(crate::data::NdcParams { focal_x: 50.0, focal_y: 50.0, width: 48.0, height: 40.0, near: 1.0 }), ..scene };
-        assert!(sweep(&ndc, settings).unwrap_err().contains("NDC"));
+        assert!(sweep(&ndc, settings, None).unwrap_err().contains("NDC"));
+    }
+
+    #[test]
+    fn the_fill_reads_only_its_own_region_and_keeps_the_confirmed_depths() {
+        // 12 x 5 pixels, an edge down column 6: left confirmed at 2 on column 1, right
+        // at 5 on column 10; the rest of each side empty.
+        let (w, h) = (12usize, 5usize);
+        let mut mask = EdgeMask::all_non_edge(w as u32, h as u32);
+        let mut depth = vec![0.0f32; w * h];
+        for y in 0..h {
+            mask.non_edge[y * w + 6] = 0;
+            depth[y * w + 1] = 2.0;
+            depth[y * w + 10] = 5.0;
+        }
+        let mut span = vec![Some((0.5, 10.0)); w * h];
+        span[w * 2 + 3] = None; // this pixel's ray misses the box
+        span[w * 2 + 4] = Some((2.5, 10.0)); // the fill would land short of the box
+        let out = fill(&depth, &span, &mask, 4);
+        for y in 0..h {
+            for x in 0..w {
+                let [t, c] = out[y * w + x];
+                let p = (x, y);
+                match x {
+                    1 | 10 => assert_eq!([t, c], [depth[y * w + x], 1.0], "{p:?} confirmed, kept"),
+                    6 => assert_eq!([t, c], [0.0, 0.0], "{p:?} on the edge: not filled"),
+                    3 | 4 if y == 2 => assert_eq!([t, c], [0.0, 0.0], "{p:?} outside its span"),
+                    0 | 2..=5 => assert!((t - 2.0).abs() < 1e-6 && c > 0.0 && c < 1.0, "{p:?} left of the edge: {t} {c}"),
+                    _ => assert!((t - 5.0).abs() < 1e-6 && c > 0.0 && c < 1.0, "{p:?} right of the edge: {t} {c}"),
+                }
+            }
+        }
+        // Farther from the confirmed column, less confidence.
+        assert!(out[2 * w + 2][1] > out[2 * w + 5][1]);
+        // Beyond the radius, nothing.
+        let out = fill(&depth, &span, &mask, 1);
+        assert_eq!(out[4], [0.0, 0.0]);
+        // The sweep with the fill: every confirmed depth kept, more pixels with a target.
+        let scene = floor_scene();
+        let masks: Vec<EdgeMask> = (0..3).map(|_| EdgeMask::all_non_edge(48, 40)).collect();
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let plain = sweep(&scene, settings, None).unwrap();
+        let filled = sweep(&scene, SweepSettings { fill: 6, ..settings }, Some(&masks)).unwrap();
+        let count = |t: &StereoTargets| t.iter().flatten().flatten().filter(|v| v[1] > 0.0).count();
+        assert!(count(&filled) > count(&plain), "{} against {}", count(&filled), count(&plain));
+        for (a, b) in plain.iter().flatten().flatten().zip(filled.iter().flatten().flatten()) {
+            if a[1] > 0.0 {
+                assert_eq!(a, b);
+            }
+        }
+    }
+
+    #[test]
+    fn the_uniqueness_check_drops_flat_colour_and_keeps_texture() {
+        // The floor scene with its left half painted one flat grey in every view.
+        let mut scene = floor_scene();
+        for view in &mut scene.views {
+            for y in 0..40 {
+                for x in 0..48 {
+                    let r = view.camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+                    let t = -r.origin.z / r.dir.z;
+                    if (r.origin + t * r.dir).x < -0.2 {
+                        view.image.set(x, y, [0.5; 3]);
+                    }
+                }
+            }
+        }
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let w2c: Vec<Mat4> = scene.views.iter().map(|v| v.camera.w2c()).collect();
+        // The winners before the left-right check: on flat colour every plane costs the
+        // same and the first wins.
+        let count = |win: &Winners, flat: bool| {
+            let cam = &scene.views[0].camera;
+            (0..40u32)
+                .flat_map(|y| (0..48u32).map(move |x| (x, y)))
+                .filter(|&(x, y)| {
+                    let r = cam.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+                    let px = (r.origin + (-r.origin.z / r.dir.z) * r.dir).x;
+                    let region = if flat { px < -0.3 } else { px > -0.1 };
+                    region && win.depth[(y * 48 + x) as usize] > 0.0
+                })
+                .count()
+        };
+        let plain = winners(&scene, 0, &w2c, settings).unwrap();
+        let unique = winners(&scene, 0, &w2c, SweepSettings { uniqueness: 0.8, ..settings }).unwrap();
+        let (flat_plain, flat_unique) = (count(&plain, true), count(&unique, true));
+        assert!(flat_unique * 4 < flat_plain, "the flat half: {flat_unique} depths with the check, {flat_plain} without");
+        let (kept, all) = (count(&unique, false), count(&plain, false));
+        assert!(all > 100 && kept as f32 > 0.8 * all as f32, "the textured half keeps its depths: {kept} of {all}");
     }
 
     #[test]

@@ -254,6 +254,25 @@ fn edge_masks(args: &Args, config: &RunConfig, scene: &Scene) -> anyhow::Result<
     Ok(Some(masks))
 }
 
+/// The stereo priors' targets as images, per training view: `<view>_depth.png` (turbo,
+/// near blue to far red over the view's own range; black: no target) and
+/// `<view>_confidence.png` (grey: white a confirmed depth, darker a filled one).
+fn write_stereo_maps(trainer: &Trainer, dir: &std::path::Path) -> anyhow::Result<()> {
+    let Some(maps) = trainer.stereo_targets() else { return Ok(()) };
+    std::fs::create_dir_all(dir)?;
+    for (view, targets) in trainer.scene.views.iter().zip(maps) {
+        let Some(targets) = targets else { continue };
+        let (w, h) = (view.camera.width, view.camera.height);
+        let depth: Vec<f32> = targets.iter().map(|t| t[0]).collect();
+        let valid: Vec<bool> = targets.iter().map(|t| t[1] > 0.0).collect();
+        let stem = std::path::Path::new(&view.name).file_stem().map_or_else(|| view.name.clone(), |s| s.to_string_lossy().into_owned());
+        edgenerf::viz::depth_image(w, h, &depth, Some(&valid)).0.save_png(dir.join(format!("{stem}_depth.png")))?;
+        let confidence: Vec<f32> = targets.iter().map(|t| t[1]).collect();
+        edgenerf::viz::grey_image(w, h, &confidence).save_png(dir.join(format!("{stem}_confidence.png")))?;
+    }
+    Ok(())
+}
+
 /// The final evaluation needs test views: without them, refuse before training (a
 /// scene without `transforms_test.json` trained, then failed with a bare "No such file
 /// or directory").
@@ -575,15 +594,19 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             c.finest_height
         );
     }
-    if let Some(coverage) = trainer.stereo_coverage() {
+    if let Some((confirmed, filled)) = trainer.stereo_coverage() {
         let p = &config.priors;
+        let fill = if p.stereo_fill > 0 { format!(", {:.1} % more a depth filled within their edge regions (priors.stereo_fill = {})", 100.0 * filled, p.stereo_fill) } else { String::new() };
         eprintln!(
-            "stereo depth prior: a sweep of {} depth planes over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {})",
+            "stereo depth prior: a sweep of {} depth planes over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {}){fill}",
             p.stereo_planes,
-            100.0 * coverage,
+            100.0 * confirmed,
             p.stereo_depth,
             p.stereo_consistency
         );
+        let dir = args.out.join("stereo");
+        write_stereo_maps(&trainer, &dir).with_context(|| format!("writing the stereo targets to {}", dir.display()))?;
+        eprintln!("stereo targets: depth and confidence per training view in {}", dir.display());
     }
     if let Some(seen) = trainer.model.occupancy.seen_cells() {
         eprintln!(
