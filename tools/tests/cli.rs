@@ -340,6 +340,40 @@ fn the_stereo_prior_is_refused_on_ndc_scenes_before_the_edge_maps() {
     assert!(!run.join("edges").exists(), "refused before the edge maps");
 }
 
+/// With a stereo prior on, `train` says how many pixels the sweep confirmed and filled
+/// and writes each training view's targets as images beside the run.
+#[test]
+fn the_stereo_targets_are_reported_and_written_as_images() {
+    let out = tempfile::tempdir().unwrap();
+    let run = out.path().join("run");
+    let scene = repo().join("synthetic-scenes/small/creases");
+    let o = edgenerf(&[
+        "train",
+        scene.to_str().unwrap(),
+        "--views",
+        "3",
+        "--iters",
+        "1",
+        "--no-eval",
+        "--out",
+        run.to_str().unwrap(),
+        "--set",
+        "priors.stereo_depth=0.03",
+        "--set",
+        "priors.stereo_fill=4",
+        "--set",
+        "priors.stereo_uniqueness=0.9",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success() && t.contains("another view confirms") && t.contains("filled within their edge regions"), "{t}");
+    let names: Vec<String> = std::fs::read_dir(run.join("stereo")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    for kind in ["_depth.png", "_confidence.png"] {
+        assert_eq!(names.iter().filter(|n| n.ends_with(kind)).count(), 3, "{kind} per training view: {names:?}");
+    }
+    let depth = image::open(run.join("stereo").join(names.iter().find(|n| n.ends_with("_depth.png")).unwrap())).unwrap().to_rgb8();
+    assert!(depth.pixels().any(|p| p.0 != [0, 0, 0]), "a textured scene gets depths");
+}
+
 /// Printing into a closed pipe (`edgenerf info ... | head -1`) panicked with a backtrace;
 /// it now ends quietly on SIGPIPE, as other Unix tools do.
 #[cfg(unix)]
