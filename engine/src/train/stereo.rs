@@ -228,9 +228,9 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
                 best_plane[p] = k;
                 depth[p] = t;
             }
-        }
-        if unique {
-            volume.extend(mean.iter().enumerate().map(|(p, &c)| if span[p].is_some_and(|(lo, hi)| t >= lo && t <= hi) { c } else { f32::INFINITY }));
+            if unique {
+                volume.push(if inside { mean[p] } else { f32::INFINITY });
+            }
         }
     }
     if unique {
