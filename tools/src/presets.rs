@@ -75,16 +75,23 @@ mod tests {
         c
     }
 
-    /// The DTU preset's `[[with_views]]`: 3 views keep the view-independent colour,
-    /// 800 steps and the visibility pass's opacity floor of 0.01; the protocol's 9 views
-    /// get band-2 colour, 4800 steps and a floor of 0.02. The foreground opacity prior
-    /// is on at every view count (unlike the object preset's).
+    /// The DTU preset's `[[with_views]]`: below 9 views the view-independent colour,
+    /// 1600 steps, the visibility pass's opacity floor of 0.05 and the stereo priors;
+    /// the protocol's 9 views get band-2 colour, 4800 steps, a floor of 0.02 and no
+    /// stereo priors. The foreground opacity prior is on at every view count (unlike
+    /// the object preset's). The decay keeps its shape at every length.
     #[test]
     fn dtu_preset_follows_the_view_count() {
-        for (views, sh, iters, min_alpha) in [(3, 0, 800, 0.05), (8, 0, 800, 0.05), (9, 2, 4800, 0.02)] {
+        for (views, sh, iters, min_alpha, stereo) in [(3, 0, 1600, 0.05, true), (8, 0, 1600, 0.05, true), (9, 2, 4800, 0.02, false)] {
             let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
             assert_eq!(c.sampler.visibility.min_alpha, min_alpha, "{views} views");
+            assert_eq!(c.priors.stereo_depth > 0.0 && c.priors.stereo_free_space > 0.0, stereo, "{views} views");
+            assert_eq!((c.priors.stereo_depth == 0.0, c.priors.stereo_free_space == 0.0), (!stereo, !stereo), "{views} views");
+            // The decay written for 1600 steps (from step 1000, every 200) scaled to the run.
+            let (k, lr) = (iters / 1600, &c.optim.schedule);
+            assert_eq!(lr.lr(1000 * k - 1), lr.lr(100), "{views} views: no decay before step {}", 1000 * k);
+            assert!(lr.lr(1200 * k) < lr.lr(1000 * k - 1), "{views} views: decayed by step {}", 1200 * k);
             assert!(c.sampler.visibility.train, "{views} views");
             assert_eq!(c.priors.foreground_opacity, 0.01, "{views} views");
         }
