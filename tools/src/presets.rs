@@ -86,8 +86,8 @@ mod tests {
             let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
             assert_eq!(c.sampler.visibility.min_alpha, min_alpha, "{views} views");
-            assert_eq!(c.priors.stereo_depth > 0.0 && c.priors.stereo_free_space > 0.0, stereo, "{views} views");
-            assert_eq!((c.priors.stereo_depth == 0.0, c.priors.stereo_free_space == 0.0), (!stereo, !stereo), "{views} views");
+            let want = if stereo { (0.1, 0.03, 0.9) } else { (0.0, 0.0, 0.9) };
+            assert_eq!((c.priors.stereo_depth, c.priors.stereo_free_space, c.priors.stereo_uniqueness), want, "{views} views");
             // The decay written for 1600 steps (from step 1000, every 200) scaled to the run.
             let (k, lr) = (iters / 1600, &c.optim.schedule);
             assert_eq!(lr.lr(1000 * k - 1), lr.lr(100), "{views} views: no decay before step {}", 1000 * k);
