@@ -140,8 +140,9 @@ mod tests {
     /// `[with_cameras_inside]` of the Blender and object presets: an inside-out capture
     /// gets the learned background on the box itself (3 maps up to 64 x 128, learning at
     /// 0.3 times the field's rate), a constant opacity penalty of 0.01, an occupancy
-    /// grid that forgets in half the steps (decay 0.9) and the DTU preset's stereo
-    /// priors; a capture seen from outside keeps the preset's own background, penalty,
+    /// grid that forgets in half the steps (decay 0.9), the DTU preset's stereo
+    /// priors with planes across the up direction as well, and the foreground opacity
+    /// prior at 0.01; a capture seen from outside keeps the preset's own background, penalty,
     /// grid and no stereo priors. The LLFF and DTU presets have no such table.
     #[test]
     fn inside_out_captures_get_the_background_on_the_box() {
@@ -156,18 +157,21 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 11, "{}", preset.path);
+                    assert_eq!(applied.len(), 13, "{}", preset.path);
                     let dtu = preset_for_views(SPARSE_DTU, 3).priors;
                     let p = &c.priors;
                     assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_uniqueness), (dtu.stereo_depth, dtu.stereo_free_space, dtu.stereo_uniqueness), "{}", preset.path);
                     assert_eq!((bg.shell_shape, bg.shell_radius, bg.levels, bg.finest_height, bg.lr_scale), (ShellShape::Box, 1.0, 3, 64, 0.3), "{}", preset.path);
                     assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (0.01, 0, 0.9), "{}", preset.path);
+                    assert_eq!((p.stereo_horizontal, p.foreground_opacity), (true, 0.01), "{}: planes across up, the foreground held opaque", preset.path);
+                    assert!(!dtu.stereo_horizontal, "DTU's neighbouring views sweep along the rays alone");
                 } else {
                     assert!(applied.is_empty(), "{}", preset.path);
                     assert_eq!((bg.shell_shape, bg.shell_radius, bg.lr_scale), (ShellShape::Sphere, 0.0, 1.0), "{}", preset.path);
                     assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (sparsity, steps, decay), "{}", preset.path);
                     assert_eq!(decay, 0.95, "{}: the grid's own decay outside", preset.path);
                     assert!(!c.priors.stereo_on(), "{}: no stereo priors outside", preset.path);
+                    assert_eq!(c.priors.foreground_opacity, 0.0, "{}: 3 views seen from outside leave the foreground alone", preset.path);
                 }
             }
         }

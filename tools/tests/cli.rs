@@ -341,7 +341,7 @@ fn the_stereo_prior_is_refused_on_ndc_scenes_before_the_edge_maps() {
 }
 
 /// With a stereo prior on, `train` says how many pixels the sweep confirmed and filled
-/// and writes each training view's targets as images beside the run.
+/// (and which planes it swept) and writes each training view's targets as images beside the run.
 #[test]
 fn the_stereo_targets_are_reported_and_written_as_images() {
     let out = tempfile::tempdir().unwrap();
@@ -363,9 +363,12 @@ fn the_stereo_targets_are_reported_and_written_as_images() {
         "priors.stereo_fill=4",
         "--set",
         "priors.stereo_uniqueness=0.9",
+        "--set",
+        "priors.stereo_horizontal=true",
     ]);
     let t = text(&o);
     assert!(o.status.success() && t.contains("another view confirms") && t.contains("filled within their edge regions"), "{t}");
+    assert!(t.contains("128 depth planes and 128 planes across the cameras' mean up vector ("), "{t}");
     let names: Vec<String> = std::fs::read_dir(run.join("stereo")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     for kind in ["_depth.png", "_confidence.png"] {
         assert_eq!(names.iter().filter(|n| n.ends_with(kind)).count(), 3, "{kind} per training view: {names:?}");

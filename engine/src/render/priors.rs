@@ -141,6 +141,10 @@ pub struct PriorConfig {
     /// where its window cost is below this fraction of the least cost of the planes
     /// more than two planes away (flat colour and repeated texture give no depth).
     pub stereo_uniqueness: f32,
+    /// Also sweep as many planes across the training cameras' mean up vector (floors,
+    /// table tops), whose windows the sweep along the rays shears where the views stand
+    /// far apart (`crate::train::stereo`). Off: the sweep along the rays alone.
+    pub stereo_horizontal: bool,
 }
 
 impl Default for PriorConfig {
@@ -165,6 +169,7 @@ impl Default for PriorConfig {
             stereo_free_margin: 0.05,
             stereo_fill: 0,
             stereo_uniqueness: 1.0,
+            stereo_horizontal: false,
         }
     }
 }

@@ -225,7 +225,7 @@ impl Pipeline {
         };
         let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
-            let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness };
+            let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness, horizontal: p.stereo_horizontal };
             // The fill reads the edge masks; a run whose regularizers do not read them
             // gets them here.
             let computed = match masks {

@@ -21,6 +21,14 @@
 //! check (SGBM's uniqueness ratio): flat colour, where every depth matches, and
 //! repeated texture, where several do, give no depth.
 //!
+//! With `horizontal` (`priors.stereo_horizontal`), a second family of `planes` planes is
+//! swept: planes across the training cameras' mean up vector ([`up_direction`]), uniform
+//! in height over what the view sees of the box. A pixel's window then lies on one
+//! floor or table top in every view, where the first family's planes (one depth along
+//! every ray) shear it: on a floor seen from cameras 120 degrees apart, a 5 x 5 window
+//! at one depth covers different texture in each view. Each pixel takes the cheaper of
+//! the two families' winners, and the uniqueness check compares depths across both.
+//!
 //! With `fill` (`priors.stereo_fill`), the gaps are filled from the confirmed depths
 //! around them inside the same region of the view's edge mask (the paper's premise:
 //! depth is smooth between edges): a Gaussian-weighted mean over a `fill`-pixel radius,
@@ -49,11 +57,34 @@ pub struct SweepSettings {
     /// The uniqueness check (1: off): a winner is kept only where its cost is below
     /// this fraction of the least cost more than [`UNIQUE_APART`] planes away.
     pub uniqueness: f32,
+    /// Also sweep planes across the cameras' up direction (see the module doc).
+    pub horizontal: bool,
 }
 
-/// Planes within this many of the winner's count as the same minimum in the uniqueness
-/// check.
+/// Depths within this many plane spacings (of the first family, in inverse depth) of
+/// the winner's count as the same minimum in the uniqueness check.
 pub const UNIQUE_APART: u32 = 2;
+
+/// The training cameras' mean up vector (their `c2w` `+y` axes averaged), normalised;
+/// `None` where they disagree (the mean shorter than 1/2: cameras rolled every which
+/// way), so no family of planes across it is swept.
+pub fn up_direction(scene: &Scene) -> Option<Vec3> {
+    let n = scene.split.train.len();
+    if n == 0 {
+        return None;
+    }
+    let mean = scene.train_views().map(|v| v.camera.c2w.y_axis.truncate()).sum::<Vec3>() / n as f32;
+    (mean.length() >= 0.5).then(|| mean.normalize())
+}
+
+/// A family of planes the sweep tries at every pixel.
+#[derive(Clone, Copy, Debug)]
+enum Family {
+    /// One depth `t` along every ray (uniform in inverse depth over the view's span).
+    Ray,
+    /// Planes `n . x = c` (uniform in `c` over what the view sees of the box).
+    Across(Vec3),
+}
 
 /// Per scene view (index into `Scene::views`): the stereo target `[depth, confidence]`
 /// of each pixel (row major, `[0, 0]` = none) for training views with another training
@@ -197,47 +228,98 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
     }
     let others: Vec<usize> = scene.split.train.iter().copied().filter(|&j| j != s).collect();
     let planes = settings.planes.max(2);
+    let mut families = vec![Family::Ray];
+    if settings.horizontal {
+        families.extend(up_direction(scene).map(Family::Across));
+    }
+    // Per family, the depth of plane `k` at pixel `p`.
+    let ray_depth = |k: u32| {
+        let f = k as f32 / (planes - 1) as f32;
+        1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near))
+    };
+    // Per family its range of plane offsets `c` (unused for rays); a family across the
+    // up direction that the view sees no height range of is dropped.
+    let offsets: Vec<(f32, f32)> = families
+        .iter()
+        .map(|family| match *family {
+            Family::Ray => (0.0, 0.0),
+            Family::Across(normal) => span
+                .iter()
+                .zip(origin.iter().zip(&dir))
+                .filter_map(|(s, (&o, &d))| s.map(|(lo, hi)| (normal.dot(o + lo * d), normal.dot(o + hi * d))))
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), (c0, c1)| (a.min(c0).min(c1), b.max(c0).max(c1))),
+        })
+        .collect();
+    let (families, offsets): (Vec<Family>, Vec<(f32, f32)>) =
+        families.into_iter().zip(offsets).filter(|(f, (c0, c1))| matches!(f, Family::Ray) || c1 > c0).unzip();
+    let plane_depth = |family: usize, k: u32, p: usize| -> f32 {
+        match families[family] {
+            Family::Ray => ray_depth(k),
+            Family::Across(normal) => {
+                let (c0, c1) = offsets[family];
+                let c = c0 + (c1 - c0) * k as f32 / (planes - 1) as f32;
+                let along = normal.dot(dir[p]);
+                let t = (c - normal.dot(origin[p])) / along;
+                if along.abs() > 1e-6 && t.is_finite() && t > 0.0 { t } else { 0.0 }
+            }
+        }
+    };
     let mut best = vec![f32::INFINITY; n];
-    let mut best_plane = vec![0u32; n];
     let mut depth = vec![0.0f32; n];
     let mut cost = vec![0.0f32; n];
-    // Every plane's window cost, kept only for the uniqueness check (planes x pixels).
+    let mut t = vec![0.0f32; n];
+    // Every plane's window cost, kept only for the uniqueness check (families x planes
+    // x pixels).
     let unique = settings.uniqueness < 1.0;
-    let mut volume = if unique { Vec::with_capacity(planes as usize * n) } else { Vec::new() };
+    let mut volume = if unique { Vec::with_capacity(families.len() * planes as usize * n) } else { Vec::new() };
     let own: Vec<[f32; 3]> = (0..n as u32).map(|p| view.image.get(p % w, p / w)).collect();
-    for k in 0..planes {
-        let f = k as f32 / (planes - 1) as f32;
-        let t = 1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near));
-        for p in 0..n {
-            let own = own[p];
-            let x = origin[p] + t * dir[p];
-            cost[p] = others
-                .iter()
-                .filter_map(|&j| {
-                    let (px, _) = scene.views[j].camera.project_with(&w2c[j], x)?;
-                    bilinear(&scene.views[j].image, px.x, px.y)
-                })
-                .map(|c| ((c[0] - own[0]).abs() + (c[1] - own[1]).abs() + (c[2] - own[2]).abs()) / 3.0)
-                .fold(1.0, f32::min);
-        }
-        let mean = box_mean(&cost, w as usize, h as usize, settings.window as usize);
-        for p in 0..n {
-            let inside = span[p].is_some_and(|(lo, hi)| t >= lo && t <= hi);
-            if inside && mean[p] < best[p] {
-                best[p] = mean[p];
-                best_plane[p] = k;
-                depth[p] = t;
+    for family in 0..families.len() {
+        for k in 0..planes {
+            for p in 0..n {
+                t[p] = plane_depth(family, k, p);
+                let own = own[p];
+                let x = origin[p] + t[p] * dir[p];
+                cost[p] = others
+                    .iter()
+                    .filter_map(|&j| {
+                        let (px, _) = scene.views[j].camera.project_with(&w2c[j], x)?;
+                        bilinear(&scene.views[j].image, px.x, px.y)
+                    })
+                    .map(|c| ((c[0] - own[0]).abs() + (c[1] - own[1]).abs() + (c[2] - own[2]).abs()) / 3.0)
+                    .fold(1.0, f32::min);
             }
-            if unique {
-                volume.push(if inside { mean[p] } else { f32::INFINITY });
+            let mean = box_mean(&cost, w as usize, h as usize, settings.window as usize);
+            for p in 0..n {
+                let inside = t[p] > 0.0 && span[p].is_some_and(|(lo, hi)| t[p] >= lo && t[p] <= hi);
+                if inside && mean[p] < best[p] {
+                    best[p] = mean[p];
+                    depth[p] = t[p];
+                }
+                if unique {
+                    volume.push(if inside { mean[p] } else { f32::INFINITY });
+                }
             }
         }
     }
     if unique {
-        // The least cost more than UNIQUE_APART planes from the winner's.
+        // The least cost of the planes whose depth lies more than UNIQUE_APART of the
+        // first family's plane spacings (in inverse depth) from the winner's: for the
+        // first family alone, the planes more than UNIQUE_APART planes away.
+        let apart = (UNIQUE_APART as f32 + 0.5) * (1.0 / near - 1.0 / far) / (planes - 1) as f32;
         for p in 0..n {
-            let second = (0..planes).filter(|&k| k.abs_diff(best_plane[p]) > UNIQUE_APART).map(|k| volume[k as usize * n + p]).fold(f32::INFINITY, f32::min);
-            if depth[p] > 0.0 && best[p] >= settings.uniqueness * second {
+            if depth[p] <= 0.0 {
+                continue;
+            }
+            let mut second = f32::INFINITY;
+            for family in 0..families.len() {
+                for k in 0..planes {
+                    let c = volume.get((family * planes as usize + k as usize) * n + p).copied().unwrap_or(f32::INFINITY);
+                    if c < second && (1.0 / plane_depth(family, k, p) - 1.0 / depth[p]).abs() > apart {
+                        second = c;
+                    }
+                }
+            }
+            if best[p] >= settings.uniqueness * second {
                 depth[p] = 0.0;
             }
         }
@@ -354,7 +436,7 @@ mod tests {
     #[test]
     fn the_sweep_finds_a_textured_floor_and_keeps_only_confirmed_depths() {
         let scene = floor_scene();
-        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0, horizontal: false };
         let targets = sweep(&scene, settings, None).unwrap();
         let depth = targets[0].as_ref().unwrap();
         let cam = &scene.views[0].camera;
@@ -419,7 +501,7 @@ mod tests {
         // The sweep with the fill: every confirmed depth kept, more pixels with a target.
         let scene = floor_scene();
         let masks: Vec<EdgeMask> = (0..3).map(|_| EdgeMask::all_non_edge(48, 40)).collect();
-        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0, horizontal: false };
         let plain = sweep(&scene, settings, None).unwrap();
         let filled = sweep(&scene, SweepSettings { fill: 6, ..settings }, Some(&masks)).unwrap();
         let count = |t: &StereoTargets| t.iter().flatten().flatten().filter(|v| v[1] > 0.0).count();
@@ -446,7 +528,7 @@ mod tests {
                 }
             }
         }
-        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0 };
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0, horizontal: false };
         let w2c: Vec<Mat4> = scene.views.iter().map(|v| v.camera.w2c()).collect();
         // The winners before the left-right check: on flat colour every plane costs the
         // same and the first wins.
@@ -468,6 +550,70 @@ mod tests {
         assert!(flat_unique * 4 < flat_plain, "the flat half: {flat_unique} depths with the check, {flat_plain} without");
         let (kept, all) = (count(&unique, false), count(&plain, false));
         assert!(all > 100 && kept as f32 > 0.8 * all as f32, "the textured half keeps its depths: {kept} of {all}");
+    }
+
+    /// The floor scene's texture seen by three cameras 120 degrees apart around the
+    /// origin, 1.2 above the floor at 2 from the axis, looking at the origin (`room`'s
+    /// layout): a window at one depth along the rays covers different texture in each.
+    fn ring_scene() -> Scene {
+        let floor = floor_scene();
+        let texture = |p: Vec3| -> [f32; 3] {
+            let a = (p.x * 7.3).sin() * (p.y * 5.1).cos();
+            let b = (p.x * 2.9 + p.y * 3.7).sin();
+            [0.5 + 0.4 * a, 0.5 + 0.4 * b, 0.5 + 0.2 * (a * b)]
+        };
+        let views = (0..3)
+            .map(|i| {
+                let phi = i as f32 * std::f32::consts::TAU / 3.0;
+                let eye = Vec3::new(2.0 * phi.cos(), 2.0 * phi.sin(), 1.2);
+                let c2w = crate::data::paths::look_at(eye, Vec3::ZERO, Vec3::Z);
+                let camera = Camera::from_fov_x(64, 48, 1.0, c2w);
+                let mut image = ImageRgb::new(64, 48);
+                for y in 0..48 {
+                    for x in 0..64 {
+                        let r = camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+                        let t = -r.origin.z / r.dir.z;
+                        image.set(x, y, if t > 0.0 { texture(r.origin + t * r.dir) } else { [0.5; 3] });
+                    }
+                }
+                View { name: format!("v{i}"), path: format!("v{i}.png").into(), camera, image, mask: None, alpha: None, depth: None, normal: None, train_mask: None }
+            })
+            .collect();
+        Scene { views, aabb: [Vec3::new(-2.5, -2.5, -0.05), Vec3::new(2.5, 2.5, 1.5)], near: 0.3, ..floor }
+    }
+
+    #[test]
+    fn planes_across_the_up_direction_find_a_floor_the_views_see_from_far_apart() {
+        let scene = ring_scene();
+        assert!((up_direction(&scene).unwrap() - Vec3::Z).length() < 1e-5, "the cameras' mean up is the world's");
+        // (confirmed, within 3 % of the floor's depth), over the three views.
+        let score = |horizontal: bool| {
+            let settings = SweepSettings { planes: 96, window: 2, consistency: 0.01, fill: 0, uniqueness: 0.9, horizontal };
+            let targets = sweep(&scene, settings, None).unwrap();
+            let (mut kept, mut close) = (0, 0);
+            for (v, target) in targets.iter().enumerate() {
+                for (p, &[t, _]) in target.as_ref().unwrap().iter().enumerate() {
+                    if t > 0.0 {
+                        kept += 1;
+                        let r = scene.ray(v, p as u32 % 64, p as u32 / 64);
+                        let truth = -r.origin.z / r.dir.z;
+                        close += (truth > 0.0 && (t - truth).abs() < 0.03 * truth) as u32;
+                    }
+                }
+            }
+            (kept, close)
+        };
+        let (along, across) = (score(false), score(true));
+        eprintln!("along the rays {along:?}, with planes across up {across:?}");
+        assert!(across.1 > 2 * along.1, "more of the floor found: {across:?} against {along:?}");
+        assert!(across.1 as f32 > 0.9 * across.0 as f32, "and what is found lies on it: {across:?}");
+        // Cameras that disagree about up get no second family.
+        let mut rolled = scene.clone();
+        for (i, view) in rolled.views.iter_mut().enumerate() {
+            let roll = glam::Mat4::from_rotation_z(i as f32 * std::f32::consts::TAU / 3.0);
+            view.camera.c2w = view.camera.c2w * roll;
+        }
+        assert!(up_direction(&rolled).is_none());
     }
 
     #[test]

@@ -597,8 +597,13 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if let Some((confirmed, filled)) = trainer.stereo_coverage() {
         let p = &config.priors;
         let fill = if p.stereo_fill > 0 { format!(", {:.1} % more a depth filled within their edge regions (priors.stereo_fill = {})", 100.0 * filled, p.stereo_fill) } else { String::new() };
+        let across = match (p.stereo_horizontal, edgenerf::train::stereo::up_direction(&trainer.scene)) {
+            (false, _) => String::new(),
+            (true, Some(up)) => format!(" and {} planes across the cameras' mean up vector ({:.2}, {:.2}, {:.2})", p.stereo_planes, up.x, up.y, up.z),
+            (true, None) => " (no planes across an up direction: the training cameras disagree about up)".to_string(),
+        };
         eprintln!(
-            "stereo depth prior: a sweep of {} depth planes over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {}){fill}",
+            "stereo depth prior: a sweep of {} depth planes{across} over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {}){fill}",
             p.stereo_planes,
             100.0 * confirmed,
             p.stereo_depth,
