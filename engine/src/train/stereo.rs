@@ -394,32 +394,31 @@ mod tests {
     use super::*;
     use crate::data::{Camera, ImageRgb, SceneFormat, Split, View};
 
-    /// Three cameras looking down at a textured floor (z = 0) from 2 m; the images are
-    /// the floor's texture where each pixel's ray meets it.
-    fn floor_scene() -> Scene {
+    /// View `i`: a `w x h` camera at `c2w` seeing a textured floor (z = 0), each pixel
+    /// the texture where its ray meets the floor (grey where it does not).
+    fn floor_view(i: usize, c2w: Mat4, w: u32, h: u32) -> View {
         let texture = |p: Vec3| -> [f32; 3] {
             let a = (p.x * 7.3).sin() * (p.y * 5.1).cos();
             let b = (p.x * 2.9 + p.y * 3.7).sin();
             [0.5 + 0.4 * a, 0.5 + 0.4 * b, 0.5 + 0.2 * (a * b)]
         };
+        let camera = Camera::from_fov_x(w, h, 1.0, c2w);
+        let mut image = ImageRgb::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let r = camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+                let t = -r.origin.z / r.dir.z;
+                image.set(x, y, if t > 0.0 { texture(r.origin + t * r.dir) } else { [0.5; 3] });
+            }
+        }
+        View { name: format!("v{i}"), path: format!("v{i}.png").into(), camera, image, mask: None, alpha: None, depth: None, normal: None, train_mask: None }
+    }
+
+    /// Three cameras looking down at a textured floor (z = 0) from 2 m; the images are
+    /// the floor's texture where each pixel's ray meets it.
+    fn floor_scene() -> Scene {
         let eyes = [Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.3, 0.0, 2.0), Vec3::new(0.0, 0.3, 2.0)];
-        let views = eyes
-            .iter()
-            .enumerate()
-            .map(|(i, &eye)| {
-                let c2w = crate::data::paths::look_at(eye, eye - Vec3::new(0.0, 0.0, 1.0), Vec3::Y);
-                let camera = Camera::from_fov_x(48, 40, 1.0, c2w);
-                let mut image = ImageRgb::new(48, 40);
-                for y in 0..40 {
-                    for x in 0..48 {
-                        let r = camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
-                        let t = -r.origin.z / r.dir.z;
-                        image.set(x, y, texture(r.origin + t * r.dir));
-                    }
-                }
-                View { name: format!("v{i}"), path: format!("v{i}.png").into(), camera, image, mask: None, alpha: None, depth: None, normal: None, train_mask: None }
-            })
-            .collect();
+        let views = eyes.iter().enumerate().map(|(i, &eye)| floor_view(i, crate::data::paths::look_at(eye, eye - Vec3::Z, Vec3::Y), 48, 40)).collect();
         Scene {
             root: ".".into(),
             format: SceneFormat::Blender,
@@ -557,26 +556,11 @@ mod tests {
     /// layout): a window at one depth along the rays covers different texture in each.
     fn ring_scene() -> Scene {
         let floor = floor_scene();
-        let texture = |p: Vec3| -> [f32; 3] {
-            let a = (p.x * 7.3).sin() * (p.y * 5.1).cos();
-            let b = (p.x * 2.9 + p.y * 3.7).sin();
-            [0.5 + 0.4 * a, 0.5 + 0.4 * b, 0.5 + 0.2 * (a * b)]
-        };
         let views = (0..3)
             .map(|i| {
                 let phi = i as f32 * std::f32::consts::TAU / 3.0;
                 let eye = Vec3::new(2.0 * phi.cos(), 2.0 * phi.sin(), 1.2);
-                let c2w = crate::data::paths::look_at(eye, Vec3::ZERO, Vec3::Z);
-                let camera = Camera::from_fov_x(64, 48, 1.0, c2w);
-                let mut image = ImageRgb::new(64, 48);
-                for y in 0..48 {
-                    for x in 0..64 {
-                        let r = camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
-                        let t = -r.origin.z / r.dir.z;
-                        image.set(x, y, if t > 0.0 { texture(r.origin + t * r.dir) } else { [0.5; 3] });
-                    }
-                }
-                View { name: format!("v{i}"), path: format!("v{i}.png").into(), camera, image, mask: None, alpha: None, depth: None, normal: None, train_mask: None }
+                floor_view(i, crate::data::paths::look_at(eye, Vec3::ZERO, Vec3::Z), 64, 48)
             })
             .collect();
         Scene { views, aabb: [Vec3::new(-2.5, -2.5, -0.05), Vec3::new(2.5, 2.5, 1.5)], near: 0.3, ..floor }
