@@ -82,8 +82,8 @@ pub fn up_direction(scene: &Scene) -> Option<Vec3> {
 enum Family {
     /// One depth `t` along every ray (uniform in inverse depth over the view's span).
     Ray,
-    /// Planes `n . x = c` (uniform in `c` over what the view sees of the box).
-    Across(Vec3),
+    /// Planes `normal . x = c`, `c` uniform over `lo..=hi`: what the view sees of the box.
+    Across { normal: Vec3, lo: f32, hi: f32 },
 }
 
 /// Per scene view (index into `Scene::views`): the stereo target `[depth, confidence]`
@@ -109,8 +109,9 @@ pub fn sweep(scene: &Scene, settings: SweepSettings, masks: Option<&[EdgeMask]>)
         return Err("priors.stereo_fill needs the training views' edge masks".into());
     }
     let w2c: Vec<Mat4> = scene.views.iter().map(|v| v.camera.w2c()).collect();
+    let up = up_direction(scene);
     let winners: Vec<Option<Winners>> = (0..scene.views.len())
-        .map(|v| if train.contains(&v) && train.len() > 1 { winners(scene, v, &w2c, settings) } else { None })
+        .map(|v| if train.contains(&v) && train.len() > 1 { winners(scene, v, &w2c, up, settings) } else { None })
         .collect();
     Ok((0..scene.views.len())
         .map(|v| {
@@ -208,8 +209,9 @@ struct Winners {
     depth: Vec<f32>,
 }
 
-/// The winner-take-all depth of every pixel of view `s`.
-fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Option<Winners> {
+/// The winner-take-all depth of every pixel of view `s`; `up` is the training cameras'
+/// [`up_direction`], which `settings.horizontal` sweeps planes across.
+fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: SweepSettings) -> Option<Winners> {
     let view = &scene.views[s];
     let (w, h) = (view.camera.width, view.camera.height);
     let n = (w * h) as usize;
@@ -229,37 +231,26 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
     let others: Vec<usize> = scene.split.train.iter().copied().filter(|&j| j != s).collect();
     let planes = settings.planes.max(2);
     let mut families = vec![Family::Ray];
-    if settings.horizontal {
-        families.extend(up_direction(scene).map(Family::Across));
+    if let Some(normal) = up.filter(|_| settings.horizontal) {
+        // The heights (along `normal`) of the view's rays' spans in the box; a view that
+        // sees no range of heights gets no second family.
+        let (lo, hi) = span
+            .iter()
+            .zip(origin.iter().zip(&dir))
+            .filter_map(|(s, (&o, &d))| s.map(|(t0, t1)| (normal.dot(o + t0 * d), normal.dot(o + t1 * d))))
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), (c0, c1)| (a.min(c0).min(c1), b.max(c0).max(c1)));
+        if hi > lo {
+            families.push(Family::Across { normal, lo, hi });
+        }
     }
-    // Per family, the depth of plane `k` at pixel `p`.
-    let ray_depth = |k: u32| {
+    // The depth of plane `k` of a family at pixel `p` (0: the ray never meets it).
+    let plane_depth = |family: Family, k: u32, p: usize| -> f32 {
         let f = k as f32 / (planes - 1) as f32;
-        1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near))
-    };
-    // Per family its range of plane offsets `c` (unused for rays); a family across the
-    // up direction that the view sees no height range of is dropped.
-    let offsets: Vec<(f32, f32)> = families
-        .iter()
-        .map(|family| match *family {
-            Family::Ray => (0.0, 0.0),
-            Family::Across(normal) => span
-                .iter()
-                .zip(origin.iter().zip(&dir))
-                .filter_map(|(s, (&o, &d))| s.map(|(lo, hi)| (normal.dot(o + lo * d), normal.dot(o + hi * d))))
-                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), (c0, c1)| (a.min(c0).min(c1), b.max(c0).max(c1))),
-        })
-        .collect();
-    let (families, offsets): (Vec<Family>, Vec<(f32, f32)>) =
-        families.into_iter().zip(offsets).filter(|(f, (c0, c1))| matches!(f, Family::Ray) || c1 > c0).unzip();
-    let plane_depth = |family: usize, k: u32, p: usize| -> f32 {
-        match families[family] {
-            Family::Ray => ray_depth(k),
-            Family::Across(normal) => {
-                let (c0, c1) = offsets[family];
-                let c = c0 + (c1 - c0) * k as f32 / (planes - 1) as f32;
+        match family {
+            Family::Ray => 1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near)),
+            Family::Across { normal, lo, hi } => {
                 let along = normal.dot(dir[p]);
-                let t = (c - normal.dot(origin[p])) / along;
+                let t = (lo + (hi - lo) * f - normal.dot(origin[p])) / along;
                 if along.abs() > 1e-6 && t.is_finite() && t > 0.0 { t } else { 0.0 }
             }
         }
@@ -273,7 +264,7 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
     let unique = settings.uniqueness < 1.0;
     let mut volume = if unique { Vec::with_capacity(families.len() * planes as usize * n) } else { Vec::new() };
     let own: Vec<[f32; 3]> = (0..n as u32).map(|p| view.image.get(p % w, p / w)).collect();
-    for family in 0..families.len() {
+    for &family in &families {
         for k in 0..planes {
             for p in 0..n {
                 t[p] = plane_depth(family, k, p);
@@ -290,7 +281,7 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
             }
             let mean = box_mean(&cost, w as usize, h as usize, settings.window as usize);
             for p in 0..n {
-                let inside = t[p] > 0.0 && span[p].is_some_and(|(lo, hi)| t[p] >= lo && t[p] <= hi);
+                let inside = span[p].is_some_and(|(lo, hi)| t[p] >= lo && t[p] <= hi);
                 if inside && mean[p] < best[p] {
                     best[p] = mean[p];
                     depth[p] = t[p];
@@ -311,9 +302,9 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], settings: SweepSettings) -> Op
                 continue;
             }
             let mut second = f32::INFINITY;
-            for family in 0..families.len() {
+            for (i, &family) in families.iter().enumerate() {
                 for k in 0..planes {
-                    let c = volume.get((family * planes as usize + k as usize) * n + p).copied().unwrap_or(f32::INFINITY);
+                    let c = volume[(i * planes as usize + k as usize) * n + p];
                     if c < second && (1.0 / plane_depth(family, k, p) - 1.0 / depth[p]).abs() > apart {
                         second = c;
                     }
@@ -543,8 +534,8 @@ mod tests {
                 })
                 .count()
         };
-        let plain = winners(&scene, 0, &w2c, settings).unwrap();
-        let unique = winners(&scene, 0, &w2c, SweepSettings { uniqueness: 0.8, ..settings }).unwrap();
+        let plain = winners(&scene, 0, &w2c, None, settings).unwrap();
+        let unique = winners(&scene, 0, &w2c, None, SweepSettings { uniqueness: 0.8, ..settings }).unwrap();
         let (flat_plain, flat_unique) = (count(&plain, true), count(&unique, true));
         assert!(flat_unique * 4 < flat_plain, "the flat half: {flat_unique} depths with the check, {flat_plain} without");
         let (kept, all) = (count(&unique, false), count(&plain, false));
