@@ -26,6 +26,9 @@ fn speed_times_the_steps_of_a_run_with_every_term_on() {
     let case = &json["cases"][0];
     assert_eq!(case["name"], "sparse-small");
     assert_eq!(case["train_views"], 3);
+    // creases' cameras stand outside its box and 3 views are under every [[with_views]]:
+    // no table of the preset applies.
+    assert_eq!(case["tables_applied"], serde_json::json!([]), "{case}");
     let stages = case["stages"].as_array().unwrap();
     assert_eq!(stages.len(), 7);
     let profiled = case["profiled_ms_per_step"].as_f64().unwrap();
@@ -86,6 +89,30 @@ fn speed_times_the_steps_of_a_run_with_every_term_on() {
     ] {
         let k = kernels.iter().find(|k| k["kernel"] == name).unwrap_or_else(|| panic!("{name} not timed: {kernels:?}"));
         assert!(k["ms_per_step"].as_f64().unwrap() > 0.0 && k["dispatches_per_step"].as_f64().unwrap() >= 1.0, "{k}");
+    }
+}
+
+/// `speed` times what `train` would run: a config's `[with_cameras_inside]` applies to an
+/// inside-out scene (`room`: the background on the box, the stereo priors), as it does
+/// in `train`, instead of timing the preset's base table (which marched 114 samples per
+/// ray on `room` where its run marches 26).
+#[test]
+fn speed_applies_the_tables_train_applies() {
+    let out = tempfile::tempdir().unwrap();
+    let o = command()
+        .current_dir(repo())
+        .args(["speed", "--scene", "synthetic-scenes/small/room", "--config", "tools/configs/sparse-small.toml", "--views", "3"])
+        .args(["--warmup", "2", "--steps", "1", "--out"])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("[with_cameras_inside] in tools/configs/sparse-small.toml sets"), "{t}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.path().join("speed.json")).unwrap()).unwrap();
+    let applied: Vec<&str> = json["cases"][0]["tables_applied"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    for key in ["render.learned_background.shell_shape=\"box\"", "priors.stereo_depth=0.1", "sampler.decay=0.9"] {
+        assert!(applied.contains(&key), "{key} not applied: {applied:?}");
     }
 }
 

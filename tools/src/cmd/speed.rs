@@ -4,7 +4,9 @@
 //! samples per second of the forward and backward passes, as a table and as JSON; with
 //! `--kernels`, the wall time of every kernel timed on its own
 //! ([`edgenerf::gpu::KernelTimes`]). The timed steps are those of the rest of a run:
-//! every regularizer at full weight and every grid level active from the first step.
+//! every regularizer at full weight and every grid level active from the first step,
+//! with the config's `[with_cameras_inside]` and `[[with_views]]` tables applied to the
+//! scene as `train` applies them.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -73,6 +75,9 @@ struct CaseResult {
     name: String,
     scene: String,
     config: String,
+    /// The assignments of the config's `[with_cameras_inside]` and `[[with_views]]`
+    /// tables that this scene and view count applied (as `train` applies them).
+    tables_applied: Vec<String>,
     train_views: usize,
     rays_per_step: u32,
     steps: u64,
@@ -174,6 +179,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     let mut config = RunConfig::from_file_for(&case.config, None)?;
     config.scene.path = case.scene.clone();
     config.scene.views = case.views;
+    let tables_applied = super::train::apply_scene_tables(&mut config, &case.config.display().to_string())?;
     // Every term of the config at full weight and every grid level active from the
     // first step: the timed steps are those of the rest of a run (a preset's
     // regularizer schedule starts the terms later, its level annealing the fine levels).
@@ -260,6 +266,7 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
         name: case.name.clone(),
         scene: case.scene.display().to_string(),
         config: case.config.display().to_string(),
+        tables_applied,
         train_views: trainer.scene.split.train.len(),
         rays_per_step: trainer.config().train.rays_per_batch,
         steps: args.steps,

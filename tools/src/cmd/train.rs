@@ -115,27 +115,7 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     // The preset's settings for more views and for inside-out captures, under every
     // option of the command line.
-    // The cameras are loaded (without images) once, and only if a table needs them.
-    let mut cameras = None;
-    if config.with_cameras_inside.is_some() {
-        let scene = cameras.insert(load_scene_cameras(&config)?);
-        let applied = config.apply_with_cameras_inside(scene.cameras_inside_box(), &source)?;
-        if !applied.is_empty() {
-            eprintln!("every training camera stands inside the scene box: [with_cameras_inside] in {source} sets {}", applied.join(", "));
-        }
-    }
-    if !config.with_views.is_empty() {
-        // `--views` is in `scene.views` by now, as is a config file's own.
-        let views = match (config.scene.views, cameras) {
-            (Some(k), _) => k,
-            (None, Some(scene)) => scene.split.train.len(),
-            (None, None) => load_scene_cameras(&config)?.split.train.len(),
-        };
-        let applied = config.apply_with_views(views, &source)?;
-        if !applied.is_empty() {
-            eprintln!("{views} training views: [[with_views]] in {source} sets {}", applied.join(", "));
-        }
-    }
+    apply_scene_tables(&mut config, &source)?;
     if let Some(iters) = args.iters {
         config.train.iters = iters;
     }
@@ -228,6 +208,38 @@ fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow
         edgenerf::train::stereo::check_scene(scene).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
     Ok(())
+}
+
+/// Applies a config's `[with_cameras_inside]` and `[[with_views]]` tables for its scene
+/// (`config.scene`, with `--views` already in `scene.views`), printing what each set,
+/// and returns every assignment applied. `train` and `speed` both run it, so that
+/// `speed` times the configuration a run of the same scene and views trains. The
+/// scene's cameras are loaded (without images) once, and only if a table needs them.
+pub(crate) fn apply_scene_tables(config: &mut RunConfig, source: &str) -> anyhow::Result<Vec<String>> {
+    let mut all = Vec::new();
+    let mut cameras = None;
+    if config.with_cameras_inside.is_some() {
+        let scene = cameras.insert(load_scene_cameras(config)?);
+        let applied = config.apply_with_cameras_inside(scene.cameras_inside_box(), source)?;
+        if !applied.is_empty() {
+            eprintln!("every training camera stands inside the scene box: [with_cameras_inside] in {source} sets {}", applied.join(", "));
+        }
+        all.extend(applied);
+    }
+    if !config.with_views.is_empty() {
+        // `--views` is in `scene.views` by now, as is a config file's own.
+        let views = match (config.scene.views, cameras) {
+            (Some(k), _) => k,
+            (None, Some(scene)) => scene.split.train.len(),
+            (None, None) => load_scene_cameras(config)?.split.train.len(),
+        };
+        let applied = config.apply_with_views(views, source)?;
+        if !applied.is_empty() {
+            eprintln!("{views} training views: [[with_views]] in {source} sets {}", applied.join(", "));
+        }
+        all.extend(applied);
+    }
+    Ok(all)
 }
 
 /// The scene's cameras and splits without its images (how many training views a run has).
