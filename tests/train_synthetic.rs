@@ -138,6 +138,30 @@ fn the_exact_visibility_pass_trains_as_without_it_on_fewer_samples() {
     assert!(faint.last().unwrap().samples_per_ray < last.samples_per_ray, "min_alpha drops faint samples");
 }
 
+#[test]
+fn the_coarse_start_marches_coarser_until_the_fine_levels_switch_on() {
+    // Levels 1-2 of 6 at step 0, all 6 from step 8: while only the coarse levels are
+    // on, a step marches one sample per cell of the finest active level (about 3x the
+    // configured 0.02 on `smooth`), then the configured step again.
+    let run = |per_cell: &str| {
+        let mut config = tiny_config("smooth", 14);
+        for s in ["train.level_anneal.start_levels=2", "train.level_anneal.steps=8", per_cell] {
+            config.set(s).unwrap();
+        }
+        let mut trainer = Trainer::new(test_gpu(false), load(&config), config).unwrap();
+        (0..14).map(|_| trainer.step().unwrap()).collect::<Vec<_>>()
+    };
+    let fine = run("sampler.anneal_samples_per_cell=0");
+    let coarse = run("sampler.anneal_samples_per_cell=1");
+    // Step 0 marches the same untrained grid in both runs.
+    let (a, b) = (fine[0].samples_per_ray, coarse[0].samples_per_ray);
+    assert!(b < 0.5 * a && b > 0.0, "step 0: {b} samples per ray coarse, {a} at the configured step");
+    let last = (fine.last().unwrap().samples_per_ray, coarse.last().unwrap().samples_per_ray);
+    // No grid update between steps 1 and 15: the same grid, rays and jitter.
+    assert!((last.1 - last.0).abs() <= 1e-3 * last.0, "every level on: the configured step again ({} against {})", last.1, last.0);
+    assert!(coarse.iter().all(|s| s.loss.is_finite()));
+}
+
 /// PSNR of test view `view` rendered at `size x size` against its image area-averaged
 /// to that size: the test PSNR at a fraction of the pixels, cheap enough to take before
 /// and after training a slow backend on a CPU.

@@ -169,4 +169,10 @@ pub trait Field {
     fn set_active_levels(&mut self, n: u32) {
         let _ = n;
     }
+
+    /// The cell edge of the finest level [`Field::set_active_levels`] left on, in the
+    /// field's space along the box's shortest axis; `None` for backends without a grid.
+    fn finest_active_cell(&self) -> Option<f32> {
+        None
+    }
 }

@@ -159,6 +159,24 @@ impl Sampler {
         batch: &SampleBatch,
         jitter_seed: Option<u32>,
     ) -> Result<(), SamplerError> {
+        let step = self.step;
+        self.record_sample_with_step(enc, march, rays, batch, jitter_seed, step)
+    }
+
+    /// [`Sampler::record_sample`] marching at `step` instead of the configured step
+    /// (the coarse start of training, [`crate::sampler::SamplerConfig::anneal_samples_per_cell`]).
+    pub fn record_sample_with_step(
+        &mut self,
+        enc: &mut Encoder,
+        march: March<'_>,
+        rays: &GpuBuffer<GpuRay>,
+        batch: &SampleBatch,
+        jitter_seed: Option<u32>,
+        step: f32,
+    ) -> Result<(), SamplerError> {
+        if !(step > 0.0 && step.is_finite()) {
+            return Err(SamplerError::Config(format!("marching step {step} must be finite and > 0")));
+        }
         let gpu = enc.gpu();
         let n_rays = batch.n_rays;
         assert!(rays.len() >= n_rays as usize, "{} rays for a batch of {n_rays}", rays.len());
@@ -185,7 +203,7 @@ impl Sampler {
             capacity: batch.capacity,
             max_per_ray: config.max_samples_per_ray,
             occupancy,
-            step: self.step,
+            step,
             max_intervals: config.max_intervals,
             jitter: jitter_seed.is_some() as u32,
             seed: jitter_seed.unwrap_or(0),
@@ -240,9 +258,23 @@ mod tests {
         capacity: u32,
         jitter: Option<u32>,
     ) -> Out {
+        run_at_step(gpu, sampler, march, rays, capacity, jitter, None)
+    }
+
+    /// [`run`] marching at `step` (`None`: the sampler's own).
+    pub(super) fn run_at_step(
+        gpu: &Gpu,
+        sampler: &mut Sampler,
+        march: March<'_>,
+        rays: &[GpuRay],
+        capacity: u32,
+        jitter: Option<u32>,
+        step: Option<f32>,
+    ) -> Out {
         let ray_buf = GpuBuffer::from_slice(gpu, "rays", rays).unwrap();
         let batch = SampleBatch::new(gpu, rays.len() as u32, capacity).unwrap();
-        sampler.sample(gpu, march, &ray_buf, &batch, jitter).unwrap();
+        let step = step.unwrap_or(sampler.step_size());
+        gpu.submit_recorded(|enc| sampler.record_sample_with_step(enc, march, &ray_buf, &batch, jitter, step)).unwrap();
         let count = batch.count.read(gpu).unwrap();
         let n = count[0] as usize;
         Out {
@@ -313,32 +345,43 @@ mod tests {
             .collect()
     }
 
+    /// A uniform-mode sampler over `[-1, 1]^3` keeping `max` samples per ray.
+    fn uniform_sampler(max: u32) -> Sampler {
+        let cfg =
+            SamplerConfig { mode: super::super::SamplerMode::Uniform, max_samples_per_ray: max, ..Default::default() };
+        Sampler::new(&cfg, [Vec3::splat(-1.0), Vec3::splat(1.0)]).unwrap()
+    }
+
+    /// Checks every ray of `out` against [`cpu_uniform`] at `step` (and the invariants);
+    /// returns how many rays the per-ray cap `max` cut.
+    fn assert_uniform_march(out: &Out, rays: &[GpuRay], step: f32, jitter: Option<u32>, max: usize) -> usize {
+        check_invariants(out, rays, 1 << 20);
+        let mut capped = 0;
+        for (r, ray) in rays.iter().enumerate() {
+            let want = cpu_uniform(ray, step, jitter, r as u32, max);
+            let got = out.ray(r);
+            assert_eq!(got.len(), want.len(), "ray {r} ({ray:?}), jitter {jitter:?}");
+            assert_eq!(out.wanted[r] as usize, want.len());
+            for (s, (t, dt)) in got.iter().zip(&want) {
+                assert!((s.t - t).abs() < 1e-5 * t.abs().max(1.0) && (s.dt - dt).abs() < 1e-5, "ray {r}");
+            }
+            capped += (want.len() == max) as usize;
+            if r % 17 < 2 {
+                assert!(got.is_empty(), "empty range, no samples");
+            }
+        }
+        capped
+    }
+
     #[test]
     fn sampler_uniform_marching_matches_cpu_and_obeys_invariants() {
         let gpu = crate::gpu::test_gpu(false);
-        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
-        let cfg =
-            SamplerConfig { mode: super::super::SamplerMode::Uniform, max_samples_per_ray: 150, ..Default::default() };
-        let mut sampler = Sampler::new(&cfg, aabb).unwrap();
+        let mut sampler = uniform_sampler(150);
         let step = sampler.step_size();
         let rays = test_rays(700, 4);
         for jitter in [None, Some(77)] {
             let out = run(&gpu, &mut sampler, March::Uniform, &rays, 1 << 20, jitter);
-            check_invariants(&out, &rays, 1 << 20);
-            let mut capped = 0;
-            for (r, ray) in rays.iter().enumerate() {
-                let want = cpu_uniform(ray, step, jitter, r as u32, 150);
-                let got = out.ray(r);
-                assert_eq!(got.len(), want.len(), "ray {r} ({ray:?}), jitter {jitter:?}");
-                assert_eq!(out.wanted[r] as usize, want.len());
-                for (s, (t, dt)) in got.iter().zip(&want) {
-                    assert!((s.t - t).abs() < 1e-5 * t.abs().max(1.0) && (s.dt - dt).abs() < 1e-5, "ray {r}");
-                }
-                capped += (want.len() == 150) as usize;
-                if r % 17 < 2 {
-                    assert!(got.is_empty(), "empty range, no samples");
-                }
-            }
+            let capped = assert_uniform_march(&out, &rays, step, jitter, 150);
             assert!(capped > 20, "the per-ray cap is exercised ({capped} rays)");
         }
         // A different ray count reuses (and grows) the workspace.
@@ -346,6 +389,26 @@ mod tests {
         check_invariants(&out, &rays[..5], 1 << 20);
         let out = run(&gpu, &mut sampler, March::Uniform, &test_rays(1000, 5), 1 << 20, None);
         check_invariants(&out, &test_rays(1000, 5), 1 << 20);
+    }
+
+    #[test]
+    fn sampler_marches_at_a_step_given_per_call() {
+        // The coarse start of training marches at a longer step than the configured
+        // one; the next call without it marches at the configured step again.
+        let gpu = crate::gpu::test_gpu(false);
+        let mut sampler = uniform_sampler(1024);
+        let fine = sampler.step_size();
+        let rays = test_rays(300, 6);
+        let coarse = run_at_step(&gpu, &mut sampler, March::Uniform, &rays, 1 << 20, Some(5), Some(2.5 * fine));
+        assert_uniform_march(&coarse, &rays, 2.5 * fine, Some(5), 1024);
+        let again = run(&gpu, &mut sampler, March::Uniform, &rays, 1 << 20, Some(5));
+        assert!(again.count[0] > 2 * coarse.count[0], "{} samples at the configured step, {} coarse", again.count[0], coarse.count[0]);
+        let mut enc = gpu.encoder();
+        let ray_buf = GpuBuffer::from_slice(&gpu, "rays", &rays).unwrap();
+        let batch = SampleBatch::new(&gpu, rays.len() as u32, 1024).unwrap();
+        for bad in [0.0, -1.0, f32::NAN] {
+            assert!(sampler.record_sample_with_step(&mut enc, March::Uniform, &ray_buf, &batch, None, bad).is_err());
+        }
     }
 
     #[test]

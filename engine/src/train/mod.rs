@@ -650,6 +650,7 @@ impl Trainer {
             jitter: (crate::rng::SplitMix64::mixed(config.train.seed ^ step.rotate_left(17)).next_u32()) | 1,
             orientation: config.priors.orientation > 0.0,
             visibility: config.sampler.visibility.training_rule_at(step),
+            march_step: self.model.training_march_step(),
         }
     }
 

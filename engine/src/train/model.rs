@@ -306,6 +306,18 @@ impl Model {
         }
     }
 
+    /// The marching step of a training step with the field's levels as they are now:
+    /// the finest active level's cell over `sampler.anneal_samples_per_cell` when that
+    /// is longer than the configured step, else `None` (the configured step).
+    pub fn training_march_step(&self) -> Option<f32> {
+        let per_cell = self.config.sampler.anneal_samples_per_cell;
+        if per_cell <= 0.0 {
+            return None;
+        }
+        let coarse = self.field.finest_active_cell()? / per_cell;
+        (coarse > self.sampler.step_size()).then_some(coarse)
+    }
+
     /// The seed of the occupancy grid's random cells at `step`.
     pub fn occupancy_seed(&self, step: u64) -> u32 {
         (self.config.train.seed as u32).wrapping_mul(0x9E37_79B9) ^ (step as u32)
@@ -359,7 +371,7 @@ impl Model {
         normals: bool,
     ) -> Result<(), TrainError> {
         let visible = self.config.sampler.visibility.render.then(|| self.config.sampler.visibility.rule());
-        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible))?;
+        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible, None))?;
         self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
         Ok(())
     }
@@ -367,14 +379,17 @@ impl Model {
     /// Samples `bufs.rays[..n]` into `bufs.batch`, recorded into `enc` (the caller
     /// submits). With a `visible` rule (and `bufs` made for it) the march writes
     /// `bufs.visibility`'s batch, the field's densities there decide which samples a
-    /// ray can see, and only those go into `bufs.batch`.
+    /// ray can see, and only those go into `bufs.batch`. `step`: march at this step
+    /// instead of the configured one ([`Model::training_march_step`]).
     pub(super) fn record_sample(
         &mut self,
         enc: &mut Encoder,
         bufs: &BatchBuffers,
         jitter_seed: Option<u32>,
         visible: Option<Visibility>,
+        step: Option<f32>,
     ) -> Result<(), TrainError> {
+        let step = step.unwrap_or(self.sampler.step_size());
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
             SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
@@ -382,13 +397,13 @@ impl Model {
         };
         match (&bufs.visibility, visible) {
             (Some(v), Some(rule)) => {
-                self.sampler.record_sample(enc, march, &bufs.rays, &v.marched, jitter_seed)?;
+                self.sampler.record_sample_with_step(enc, march, &bufs.rays, &v.marched, jitter_seed, step)?;
                 // The marched samples' densities in `field_out`: the pass reads them
                 // before the forward of the kept samples overwrites the buffer.
                 self.field.record_sample_density(enc, &v.marched, &bufs.field_out)?;
                 v.pass.record(enc, &v.marched, &bufs.field_out, &bufs.batch, rule)?;
             }
-            _ => self.sampler.record_sample(enc, march, &bufs.rays, &bufs.batch, jitter_seed)?,
+            _ => self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, jitter_seed, step)?,
         }
         Ok(())
     }

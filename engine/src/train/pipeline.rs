@@ -81,6 +81,9 @@ pub struct StepPlan {
     /// The sampler's visibility pass at this step (`sampler.visibility`), `None` when
     /// it does not run.
     pub visibility: Option<Visibility>,
+    /// The marching step when it is not the configured one (the coarse start,
+    /// [`crate::train::Model::training_march_step`]).
+    pub march_step: Option<f32>,
 }
 
 impl StepPlan {
@@ -338,7 +341,7 @@ impl Pipeline {
         profile: &mut Option<StageTimes>,
     ) -> Result<(), TrainError> {
         self.upload(enc.gpu(), scene, model, batch, plan);
-        model.record_sample(enc, &self.bufs, Some(plan.jitter), plan.visibility)?;
+        model.record_sample(enc, &self.bufs, Some(plan.jitter), plan.visibility, plan.march_step)?;
         end_recorded_stage(profile, enc, Stage::Sampler)?;
         model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
         end_recorded_stage(profile, enc, Stage::FieldForward)?;

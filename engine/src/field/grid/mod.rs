@@ -1501,6 +1501,12 @@ impl Field for GridField {
     fn set_active_levels(&mut self, n: u32) {
         self.active_levels = n.min(self.config.n_levels);
     }
+
+    fn finest_active_cell(&self) -> Option<f32> {
+        let level = self.active_levels.clamp(1, self.config.n_levels) - 1;
+        let cells = level_scale(self.config.base_resolution, self.config.per_level_scale(), level);
+        (cells > 0.0).then(|| (self.aabb[1] - self.aabb[0]).min_element() / cells)
+    }
 }
 
 /// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).

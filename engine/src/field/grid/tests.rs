@@ -591,9 +591,18 @@ fn field_grid_level_annealing_masks_levels() {
         let t = m.forward(pos(smp), dir(smp));
         assert_close("annealed normal", &to_f64(&normals[i][..3]), &t.normal, 1e-4, 1e-4);
     }
+    // The finest active level's cell along the box's shortest axis (the coarse
+    // start's marching step is a fraction of it).
+    let cfg = small_config();
+    let ext = (s.field.aabb()[1] - s.field.aabb()[0]).min_element();
+    let cell_of = |l: i32| ext / (cfg.base_resolution as f64 * cfg.per_level_scale().powi(l) - 1.0) as f32;
+    let cell = s.field.finest_active_cell().unwrap();
+    assert!((cell - cell_of(1)).abs() < 1e-5 * cell, "{cell} against {}", cell_of(1));
     // All levels again: level 4 contributes.
     s.field.set_active_levels(99);
     assert_eq!(s.field.active_levels(), 5);
+    let fine = s.field.finest_active_cell().unwrap();
+    assert!((fine - cell_of(4)).abs() < 1e-5 * fine && fine < 0.2 * cell);
 }
 
 #[test]
