@@ -141,8 +141,9 @@ fn the_exact_visibility_pass_trains_as_without_it_on_fewer_samples() {
 #[test]
 fn the_coarse_start_marches_coarser_until_the_fine_levels_switch_on() {
     // Levels 1-2 of 6 at step 0, all 6 from step 8: while only the coarse levels are
-    // on, a step marches one sample per cell of the finest active level (about 3x the
-    // configured 0.02 on `smooth`), then the configured step again.
+    // on, a step marches one sample per cell of the finest active level (0.041 along
+    // `smooth`'s shortest axis, 1.1 / 26.9: about 2x the configured 0.02), then the
+    // configured step again.
     let run = |per_cell: &str| {
         let mut config = tiny_config("smooth", 14);
         for s in ["train.level_anneal.start_levels=2", "train.level_anneal.steps=8", per_cell] {
