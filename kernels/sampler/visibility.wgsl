@@ -6,7 +6,9 @@
 //   T_0 = 1,  T_{i+1} = T_i trans_i;
 // the walk stops at the first i with T_i < min_transmittance (tested before the
 // sample, as the renderer's early termination), and sample i is kept iff
-// alpha_i >= min_alpha (nerfacc's `early_stop_eps` and `alpha_thre`). T runs over every
+// alpha_i >= min_alpha (nerfacc's `early_stop_eps` and `alpha_thre`) or dropping it
+// would take the ray's dropped optical thickness sum tau past max_dropped_tau (the
+// bound on the opacity a ray loses to the floor). T runs over every
 // marched sample, dropped ones included. A NaN density keeps its sample and every
 // later one (NaN compares false both ways), so it reaches the field's outputs and the
 // optimizer's check instead of vanishing here.
@@ -22,7 +24,8 @@ struct Params {
     n_rays: u32,
     min_transmittance: f32,
     min_alpha: f32,
-    pad: u32,
+    // -ln(1 - max_dropped_opacity); f32 max for no bound.
+    max_dropped_tau: f32,
 }
 
 @group(0) @binding(0) var<storage, read> params_buffer: Params;
@@ -44,6 +47,7 @@ var<private> params: Params;
 fn walk(r: u32, write: bool, start: u32) -> u32 {
     let range = in_ranges[r];
     var T = 1.0;
+    var dropped = 0.0;
     var n = 0u;
     for (var k = 0u; k < range.count; k++) {
         if (T < params.min_transmittance) {
@@ -53,7 +57,9 @@ fn walk(r: u32, write: bool, start: u32) -> u32 {
         let smp = in_samples[s];
         let tau = density[s].w * smp.dt;
         let trans = exp(-tau);
-        if (!(alpha_of(tau, trans) < params.min_alpha)) {
+        if (alpha_of(tau, trans) < params.min_alpha && dropped + tau <= params.max_dropped_tau) {
+            dropped += tau;
+        } else {
             if (write) {
                 samples[start + n] = smp;
             }

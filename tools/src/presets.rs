@@ -59,8 +59,22 @@ mod tests {
         assert_eq!(sparse_preset(SceneFormat::Colmap, true).path, SPARSE_LLFF.path);
         assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_OBJECT.path);
         // The object preset is sparse-small.toml with its opacity penalty and its
-        // [[with_views]] table before it.
-        let small = SPARSE_SMALL.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
+        // [[with_views]] table before it, without sparse-small.toml's visibility pass
+        // (its table up to the blank line after it): not measured on captures without
+        // alpha.
+        let mut in_visibility = false;
+        let small = SPARSE_SMALL
+            .text
+            .lines()
+            .skip_while(|l| !l.starts_with("[field]"))
+            .filter(|l| {
+                in_visibility |= l.starts_with("[sampler.visibility]");
+                let keep = !in_visibility;
+                in_visibility &= !l.is_empty();
+                keep
+            })
+            .collect::<Vec<_>>();
+        assert!(small.len() + 5 < SPARSE_SMALL.text.lines().skip_while(|l| !l.starts_with("[field]")).count(), "the visibility table was cut");
         let object = SPARSE_OBJECT.text.lines().skip_while(|l| !l.starts_with("[field]")).collect::<Vec<_>>();
         assert_eq!(object, small, "sparse-object.toml's tables from [field] on must be sparse-small.toml's");
     }
@@ -94,6 +108,19 @@ mod tests {
             assert!(lr.lr(1200 * k) < lr.lr(1000 * k - 1), "{views} views: decayed by step {}", 1200 * k);
             assert!(c.sampler.visibility.train, "{views} views");
             assert_eq!(c.priors.foreground_opacity, 0.01, "{views} views");
+        }
+    }
+
+    /// `sparse-small.toml` runs the pass from step 256 and drops faint samples with the
+    /// bound on the opacity a ray may lose to them; the object preset, not measured with
+    /// it, has no pass.
+    #[test]
+    fn small_preset_bounds_its_visibility_floor_and_the_object_preset_has_none() {
+        let small = preset_for_views(SPARSE_SMALL, 3).sampler.visibility;
+        assert!(small.train && !small.render);
+        assert_eq!((small.min_alpha, small.max_dropped_opacity, small.start_step, small.min_alpha_start_step), (0.01, 0.05, 256, 256));
+        for views in [2, 3, 5, 8] {
+            assert!(!preset_for_views(SPARSE_OBJECT, views).sampler.visibility.train, "{views} views");
         }
     }
 

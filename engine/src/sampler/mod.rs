@@ -221,6 +221,13 @@ pub struct VisibilityConfig {
     /// Samples whose opacity `1 - exp(-sigma dt)` is below this are dropped (nerfacc's
     /// `alpha_thre`); 0 keeps them.
     pub min_alpha: f32,
+    /// The most opacity a ray may lose to `min_alpha`: walking front to back, a faint
+    /// sample is dropped only while the dropped samples' opacity together,
+    /// `1 - exp(-sum sigma dt)`, stays at most this; past it the ray keeps its faint
+    /// samples. It bounds what the floor changes in a ray's colour. 1 (the default):
+    /// no bound, nerfacc's `alpha_thre`; on fog, where every sample is faint, a bound
+    /// keeps most of them.
+    pub max_dropped_opacity: f32,
     /// First training step with the pass.
     pub start_step: u32,
     /// First training step at which `min_alpha` applies (before it, 0). An untrained
@@ -231,14 +238,14 @@ pub struct VisibilityConfig {
 
 impl Default for VisibilityConfig {
     fn default() -> Self {
-        Self { train: false, render: false, min_transmittance: 1e-4, min_alpha: 0.0, start_step: 0, min_alpha_start_step: 256 }
+        Self { train: false, render: false, min_transmittance: 1e-4, min_alpha: 0.0, max_dropped_opacity: 1.0, start_step: 0, min_alpha_start_step: 256 }
     }
 }
 
 impl VisibilityConfig {
     /// The rule the pass applies when rendering.
     pub fn rule(&self) -> Visibility {
-        Visibility { min_transmittance: self.min_transmittance, min_alpha: self.min_alpha }
+        Visibility { min_transmittance: self.min_transmittance, min_alpha: self.min_alpha, max_dropped_opacity: self.max_dropped_opacity }
     }
 
     /// The rule the pass applies at training step `step`, `None` when the step runs
@@ -326,6 +333,9 @@ impl SamplerConfig {
             if !(x.is_finite() && (0.0..1.0).contains(&x)) {
                 return fail(format!("visibility.{name} = {x} must lie in [0, 1)"));
             }
+        }
+        if !(v.max_dropped_opacity > 0.0 && v.max_dropped_opacity <= 1.0) {
+            return fail(format!("visibility.max_dropped_opacity = {} must lie in (0, 1] (1: no bound)", v.max_dropped_opacity));
         }
         if self.max_intervals == 0 || self.max_intervals > MAX_INTERVALS_LIMIT {
             return fail(format!("max_intervals {} not in 1..={MAX_INTERVALS_LIMIT}", self.max_intervals));

@@ -16,7 +16,9 @@
 //! those without the pass; what it saves is the forward pass of those samples. With
 //! `min_alpha > 0` it also drops faint samples anywhere on the ray (fog, the field's
 //! untrained haze): they no longer render nor get gradient, which biases the result by
-//! at most their opacity, as in nerfacc.
+//! at most their opacity, as in nerfacc. `max_dropped_opacity < 1` bounds that per
+//! ray: faint samples are dropped front to back only while the opacity of those
+//! dropped together stays under it, so a ray of fog keeps most of its samples.
 //!
 //! Invariants: the output is a valid [`SampleBatch`] (the layout's invariants: per-ray
 //! ranges packed in ray order, samples in increasing `t`, unchanged); a kept sample is
@@ -52,7 +54,7 @@ struct Params {
     n_rays: u32,
     min_transmittance: f32,
     min_alpha: f32,
-    pad: u32,
+    max_dropped_tau: f32,
 }
 
 /// What a sample must pass to be kept (see the module doc).
@@ -60,8 +62,18 @@ struct Params {
 pub struct Visibility {
     /// The walk stops at the first sample whose transmittance is below this.
     pub min_transmittance: f32,
-    /// Samples whose opacity `1 - exp(-sigma dt)` is below this are dropped.
+    /// Samples whose opacity `1 - exp(-sigma dt)` is below this are dropped...
     pub min_alpha: f32,
+    /// ... while the dropped samples' opacity together stays at most this (1: no bound).
+    pub max_dropped_opacity: f32,
+}
+
+impl Visibility {
+    /// The bound on the dropped samples' summed optical thickness `sum sigma dt` that
+    /// `max_dropped_opacity` gives (`-ln(1 - o)`; no bound at 1).
+    pub fn max_dropped_tau(&self) -> f32 {
+        if self.max_dropped_opacity >= 1.0 { f32::MAX } else { -(1.0 - self.max_dropped_opacity).ln() }
+    }
 }
 
 /// The pass's scratch for batches of up to `max_rays` rays.
@@ -101,6 +113,7 @@ impl VisibilityPass {
         density.assert_capacity(marched.capacity, "visibility pass: densities");
         if !(rule.min_transmittance.is_finite() && (0.0..1.0).contains(&rule.min_transmittance))
             || !(rule.min_alpha.is_finite() && (0.0..1.0).contains(&rule.min_alpha))
+            || !(rule.max_dropped_opacity > 0.0 && rule.max_dropped_opacity <= 1.0)
         {
             return Err(SamplerError::Config(format!("visibility thresholds {rule:?} must lie in [0, 1)")));
         }
@@ -108,7 +121,7 @@ impl VisibilityPass {
             n_rays,
             min_transmittance: rule.min_transmittance,
             min_alpha: rule.min_alpha,
-            pad: 0,
+            max_dropped_tau: rule.max_dropped_tau(),
         });
         let resources: [&dyn crate::gpu::BindResource; _] = [
             &params,
@@ -139,6 +152,7 @@ mod tests {
     /// CPU reference of the kept indices of one ray (module doc, in f32 as the kernel).
     fn cpu_keep(density: &[f32], dt: &[f32], rule: Visibility) -> Vec<usize> {
         let mut t = 1.0f32;
+        let mut dropped = 0.0f32;
         let mut kept = Vec::new();
         for i in 0..density.len() {
             if t < rule.min_transmittance {
@@ -151,7 +165,9 @@ mod tests {
             } else {
                 1.0 - trans
             };
-            if !(alpha < rule.min_alpha) {
+            if alpha < rule.min_alpha && dropped + tau <= rule.max_dropped_tau() {
+                dropped += tau;
+            } else {
                 kept.push(i);
             }
             t *= trans;
@@ -197,10 +213,13 @@ mod tests {
         dens.rgb_density.write(&gpu, &density);
         let out = SampleBatch::new(&gpu, n_rays, capacity).unwrap();
         let pass = VisibilityPass::new(&gpu, n_rays).unwrap();
+        let mut kept_by_rule = Vec::new();
         for rule in [
-            Visibility { min_transmittance: 1e-4, min_alpha: 0.0 },
-            Visibility { min_transmittance: 1e-2, min_alpha: 1e-2 },
-            Visibility { min_transmittance: 0.0, min_alpha: 0.0 },
+            Visibility { min_transmittance: 1e-4, min_alpha: 0.0, max_dropped_opacity: 1.0 },
+            Visibility { min_transmittance: 1e-2, min_alpha: 1e-2, max_dropped_opacity: 1.0 },
+            Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 1.0 },
+            Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 0.02 },
+            Visibility { min_transmittance: 0.0, min_alpha: 0.0, max_dropped_opacity: 1.0 },
         ] {
             let mut enc = gpu.encoder();
             pass.record(&mut enc, &marched, &dens, &out, rule).unwrap();
@@ -224,6 +243,7 @@ mod tests {
                 next += want.len() as u32;
             }
             assert_eq!(count[0], next);
+            kept_by_rule.push(next);
             if rule.min_transmittance > 0.0 {
                 assert!(dropped_somewhere, "the test rays must exercise dropping under {rule:?}");
             } else {
@@ -232,5 +252,26 @@ mod tests {
             // The NaN (ray 9, sample 7) keeps its sample and every later one.
             assert!(ranges[9].count > 7 && got_ranges[9].count >= ranges[9].count - 7, "a NaN density must not be dropped");
         }
+        // The bound on the dropped opacity keeps faint samples the plain floor drops
+        // (the fog rays), and both keep fewer than the exact rule.
+        assert!(kept_by_rule[3] > kept_by_rule[2] && kept_by_rule[3] < kept_by_rule[0], "kept per rule: {kept_by_rule:?}");
+    }
+
+    #[test]
+    fn the_dropped_opacity_bound_is_refused_outside_its_range() {
+        crate::assert_wgsl_mirror!(Params, "sampler/visibility.wgsl", "Params", [n_rays, min_transmittance, min_alpha, max_dropped_tau]);
+        let gpu = crate::gpu::test_gpu(false);
+        let marched = SampleBatch::new(&gpu, 1, 4).unwrap();
+        let dens = FieldOutputs::new(&gpu, 4).unwrap();
+        let out = SampleBatch::new(&gpu, 1, 4).unwrap();
+        let pass = VisibilityPass::new(&gpu, 1).unwrap();
+        for bad in [0.0, -0.5, 1.5, f32::NAN] {
+            let mut enc = gpu.encoder();
+            let rule = Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: bad };
+            assert!(pass.record(&mut enc, &marched, &dens, &out, rule).is_err(), "{bad} accepted");
+        }
+        assert_eq!(Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 1.0 }.max_dropped_tau(), f32::MAX);
+        let tau = Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 0.5 }.max_dropped_tau();
+        assert!((tau - 2f32.ln()).abs() < 1e-6, "{tau}");
     }
 }

@@ -48,6 +48,10 @@ pub struct Args {
     /// (`sampler.visibility.min_alpha`; default: the config's).
     #[arg(long)]
     min_alpha: Option<f32>,
+    /// With the pass on: the most opacity a ray may lose to `--min-alpha`
+    /// (`sampler.visibility.max_dropped_opacity`; default: the config's).
+    #[arg(long)]
+    max_dropped_opacity: Option<f32>,
     /// Directory for speed.json.
     #[arg(long, default_value = "runs/speed")]
     out: PathBuf,
@@ -193,6 +197,9 @@ fn time_case(gpu: &Gpu, case: &Case, args: &Args) -> anyhow::Result<CaseResult> 
     }
     if let Some(a) = args.min_alpha {
         visibility.min_alpha = a;
+    }
+    if let Some(o) = args.max_dropped_opacity {
+        visibility.max_dropped_opacity = o;
     }
     config.resolve();
     let scene = super::train::load_scene(&config)?;

@@ -635,7 +635,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let vis = &config.sampler.visibility;
     if vis.train {
         let faint = if vis.min_alpha > 0.0 {
-            format!(", and (from step {}) samples with opacity under {}", vis.min_alpha_start_step.max(vis.start_step), vis.min_alpha)
+            let bound = if vis.max_dropped_opacity < 1.0 {
+                format!(" while a ray loses at most {} opacity to them", vis.max_dropped_opacity)
+            } else {
+                String::new()
+            };
+            format!(", and (from step {}) samples with opacity under {}{bound}", vis.min_alpha_start_step.max(vis.start_step), vis.min_alpha)
         } else {
             String::new()
         };
