@@ -328,14 +328,8 @@ impl SamplerConfig {
         if self.seen_views > 1 && !self.seen_cells_only {
             return fail(format!("seen_views = {} applies to seen cells only: set sampler.seen_cells_only = true", self.seen_views));
         }
-        let v = &self.visibility;
-        for (name, x) in [("min_transmittance", v.min_transmittance), ("min_alpha", v.min_alpha)] {
-            if !(x.is_finite() && (0.0..1.0).contains(&x)) {
-                return fail(format!("visibility.{name} = {x} must lie in [0, 1)"));
-            }
-        }
-        if !(v.max_dropped_opacity > 0.0 && v.max_dropped_opacity <= 1.0) {
-            return fail(format!("visibility.max_dropped_opacity = {} must lie in (0, 1] (1: no bound)", v.max_dropped_opacity));
+        if let Err(e) = self.visibility.rule().validate() {
+            return fail(e);
         }
         if self.max_intervals == 0 || self.max_intervals > MAX_INTERVALS_LIMIT {
             return fail(format!("max_intervals {} not in 1..={MAX_INTERVALS_LIMIT}", self.max_intervals));

@@ -69,6 +69,19 @@ pub struct Visibility {
 }
 
 impl Visibility {
+    /// Checks the three thresholds' ranges; the message names the one out of range.
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, x) in [("min_transmittance", self.min_transmittance), ("min_alpha", self.min_alpha)] {
+            if !(x.is_finite() && (0.0..1.0).contains(&x)) {
+                return Err(format!("visibility.{name} = {x} must lie in [0, 1)"));
+            }
+        }
+        if !(self.max_dropped_opacity > 0.0 && self.max_dropped_opacity <= 1.0) {
+            return Err(format!("visibility.max_dropped_opacity = {} must lie in (0, 1] (1: no bound)", self.max_dropped_opacity));
+        }
+        Ok(())
+    }
+
     /// The bound on the dropped samples' summed optical thickness `sum sigma dt` that
     /// `max_dropped_opacity` gives (`-ln(1 - o)`; no bound at 1).
     pub fn max_dropped_tau(&self) -> f32 {
@@ -111,12 +124,7 @@ impl VisibilityPass {
         assert!(n_rays <= self.max_rays && out.n_rays == n_rays, "visibility pass: {n_rays} rays, room for {}", self.max_rays);
         assert!(out.capacity >= marched.capacity, "visibility pass: the output holds fewer samples than the marched batch");
         density.assert_capacity(marched.capacity, "visibility pass: densities");
-        if !(rule.min_transmittance.is_finite() && (0.0..1.0).contains(&rule.min_transmittance))
-            || !(rule.min_alpha.is_finite() && (0.0..1.0).contains(&rule.min_alpha))
-            || !(rule.max_dropped_opacity > 0.0 && rule.max_dropped_opacity <= 1.0)
-        {
-            return Err(SamplerError::Config(format!("visibility thresholds {rule:?} must lie in [0, 1)")));
-        }
+        rule.validate().map_err(SamplerError::Config)?;
         let params = enc.params(&Params {
             n_rays,
             min_transmittance: rule.min_transmittance,
@@ -268,7 +276,8 @@ mod tests {
         for bad in [0.0, -0.5, 1.5, f32::NAN] {
             let mut enc = gpu.encoder();
             let rule = Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: bad };
-            assert!(pass.record(&mut enc, &marched, &dens, &out, rule).is_err(), "{bad} accepted");
+            let err = pass.record(&mut enc, &marched, &dens, &out, rule).err().unwrap_or_else(|| panic!("{bad} accepted")).to_string();
+            assert!(err.contains("max_dropped_opacity") && err.contains("(0, 1]"), "{err}");
         }
         assert_eq!(Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 1.0 }.max_dropped_tau(), f32::MAX);
         let tau = Visibility { min_transmittance: 1e-4, min_alpha: 1e-2, max_dropped_opacity: 0.5 }.max_dropped_tau();
