@@ -165,15 +165,15 @@ mod tests {
     }
 
     /// `[with_cameras_inside]` of the Blender and object presets: an inside-out capture
-    /// gets the learned background on the box itself (3 maps up to 64 x 128, learning at
-    /// 0.3 times the field's rate), a constant opacity penalty of 0.01, an occupancy
+    /// gets the learned background on the box itself (3 maps up to 64 x 128, started at
+    /// a plain colour, not from the frames, learning at 0.3 times the field's rate), a constant opacity penalty of 0.01, an occupancy
     /// grid that forgets in half the steps (decay 0.9), the DTU preset's stereo
     /// priors with planes across the up direction as well, and the foreground opacity
     /// prior at 0.01; a capture seen from outside keeps the preset's own background, penalty,
     /// grid and no stereo priors. The LLFF and DTU presets have no such table.
     #[test]
     fn inside_out_captures_get_the_background_on_the_box() {
-        use edgenerf::render::ShellShape;
+        use edgenerf::render::{Prefit, ShellShape};
         for preset in [SPARSE_SMALL, SPARSE_OBJECT] {
             for inside in [false, true] {
                 let mut c = RunConfig::from_text_for(preset.text, true, preset.path, None).unwrap();
@@ -184,17 +184,18 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 13, "{}", preset.path);
+                    assert_eq!(applied.len(), 14, "{}", preset.path);
                     let dtu = preset_for_views(SPARSE_DTU, 3).priors;
                     let p = &c.priors;
                     assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_uniqueness), (dtu.stereo_depth, dtu.stereo_free_space, dtu.stereo_uniqueness), "{}", preset.path);
                     assert_eq!((bg.shell_shape, bg.shell_radius, bg.levels, bg.finest_height, bg.lr_scale), (ShellShape::Box, 1.0, 3, 64, 0.3), "{}", preset.path);
+                    assert_eq!(bg.prefit, Prefit::None, "{}: the map starts plain, not from the frames", preset.path);
                     assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (0.01, 0, 0.9), "{}", preset.path);
                     assert_eq!((p.stereo_horizontal, p.foreground_opacity), (true, 0.01), "{}: planes across up, the foreground held opaque", preset.path);
                     assert!(!dtu.stereo_horizontal, "DTU's neighbouring views sweep along the rays alone");
                 } else {
                     assert!(applied.is_empty(), "{}", preset.path);
-                    assert_eq!((bg.shell_shape, bg.shell_radius, bg.lr_scale), (ShellShape::Sphere, 0.0, 1.0), "{}", preset.path);
+                    assert_eq!((bg.shell_shape, bg.shell_radius, bg.lr_scale, bg.prefit), (ShellShape::Sphere, 0.0, 1.0, Prefit::All), "{}", preset.path);
                     assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (sparsity, steps, decay), "{}", preset.path);
                     assert_eq!(decay, 0.95, "{}: the grid's own decay outside", preset.path);
                     assert!(!c.priors.stereo_on(), "{}: no stereo priors outside", preset.path);

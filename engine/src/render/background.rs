@@ -15,7 +15,10 @@
 //! that camera looks through. (A direction-only background cannot show parallax; what is
 //! near enough to move between views stays the field's to explain, as in Instant-NGP
 //! and nerfacto.) Before training, [`LearnedBackground::prefit`] fits it to the frames
-//! of the training images, which mostly show background in object-centric captures.
+//! of the training images, which mostly show background in object-centric captures;
+//! `prefit` limits it to the coarsest map or turns it off (inside-out captures, where
+//! the frames show the room's furniture and a start from them leaves the floor and
+//! walls to the map instead of the field).
 //!
 //! The map lives on the host: the renderer reads each ray's background from
 //! [`crate::layout::RayAux::background`], which the caller fills with
@@ -79,6 +82,20 @@ pub struct LearnedBackgroundConfig {
     /// floor): the map is then a texture on those surfaces, at the right distance from
     /// every camera, including cameras inside the box.
     pub shell_shape: ShellShape,
+    /// Which maps [`LearnedBackground::prefit`] starts from the training frames:
+    /// `all` (the default), `coarsest` (the finer maps start at 0, their detail left
+    /// to training), or `none` (every direction starts at `init`).
+    pub prefit: Prefit,
+}
+
+/// [`LearnedBackgroundConfig::prefit`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Prefit {
+    #[default]
+    All,
+    Coarsest,
+    None,
 }
 
 /// [`LearnedBackgroundConfig::shell_shape`].
@@ -92,7 +109,7 @@ pub enum ShellShape {
 
 impl Default for LearnedBackgroundConfig {
     fn default() -> Self {
-        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5, shell_radius: 0.0, shell_shape: ShellShape::Sphere }
+        Self { levels: 1, finest_height: 4, lr_scale: 1.0, init: 0.5, shell_radius: 0.0, shell_shape: ShellShape::Sphere, prefit: Prefit::All }
     }
 }
 
@@ -416,7 +433,12 @@ impl LearnedBackground {
 
     /// [`LearnedBackground::prefit`] with `rounds` of [`LearnedBackground::sharpen`].
     fn prefit_with(&mut self, dirs: &[[f32; 3]], colors: &[[f32; 3]], rounds: usize) {
-        if dirs.is_empty() {
+        let fitted = match self.config.prefit {
+            Prefit::All => self.maps.len(),
+            Prefit::Coarsest => 1,
+            Prefit::None => 0,
+        };
+        if dirs.is_empty() || fitted == 0 {
             return;
         }
         let to_logit = |c: f32| {
@@ -431,7 +453,7 @@ impl LearnedBackground {
         let median = order[order.len() / 2].map(to_logit);
         let targets: Vec<[f32; 3]> = colors.iter().map(|c| c.map(to_logit)).collect();
         self.logits.fill(0.0);
-        for level in 0..self.maps.len() {
+        for level in 0..fitted {
             let (off, h, w) = self.maps[level];
             let prior = if level == 0 { median } else { [0.0; 3] };
             // What each direction's target leaves to this map: the coarser maps are
@@ -715,6 +737,32 @@ mod tests {
         let c = bg.colors(&[[-1.0, 0.05, 0.9], [-1.0, -0.05, -0.9]]);
         assert!(c[0].iter().all(|&x| x < 0.2) && c[1].iter().all(|&x| x > 0.8), "{c:?}");
         assert_eq!((bg.t, bg.m.iter().all(|&m| m == 0.0)), (0, true), "optimizer state reset");
+    }
+
+    /// `prefit = "coarsest"` fits only the coarsest map (the finer ones stay at 0) and
+    /// `prefit = "none"` leaves every texel at `init`; `all` changes the finer maps too.
+    #[test]
+    fn prefit_fits_the_maps_it_is_told_to() {
+        let (dirs, colors): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..400)
+            .map(|i| {
+                let a = i as f32 * 0.05;
+                let up = (i / 7) % 2 == 0;
+                ([a.cos(), a.sin(), if up { 0.5 } else { -0.5 }], if up { [0.1, 0.3, 0.9] } else { [0.9, 0.6, 0.1] })
+            })
+            .unzip();
+        let fitted = |prefit| {
+            let config = LearnedBackgroundConfig { levels: 2, finest_height: 16, init: 0.3, prefit, ..Default::default() };
+            let mut bg = LearnedBackground::new(config, UNIT_BOX);
+            let start = bg.logits.clone();
+            bg.prefit(&dirs, &colors);
+            let (_, h0, w0) = bg.maps[0];
+            let changed = |r: std::ops::Range<usize>| r.filter(|&i| bg.logits[i] != start[i]).count();
+            (changed(0..3 * h0 * w0), changed(3 * h0 * w0..bg.logits.len()))
+        };
+        let (all, coarsest, none) = (fitted(Prefit::All), fitted(Prefit::Coarsest), fitted(Prefit::None));
+        assert!(all.0 > 0 && all.1 > 0, "all: {all:?}");
+        assert!(coarsest.0 > 0 && coarsest.1 == 0, "coarsest: {coarsest:?}");
+        assert_eq!(none, (0, 0), "none");
     }
 
     /// Frames that show a sharp edge between two colours in the middle of a texel (a

@@ -83,7 +83,7 @@ pub mod reference;
 #[cfg(test)]
 mod tests;
 
-pub use background::{LearnedBackground, LearnedBackgroundConfig, ShellShape};
+pub use background::{LearnedBackground, LearnedBackgroundConfig, Prefit, ShellShape};
 pub use priors::{PriorConfig, PriorTerms, RayPriors};
 
 use std::sync::Arc;

@@ -594,7 +594,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if let Some(bg) = &trainer.model.background {
         let c = bg.config();
         eprintln!(
-            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour {} (finest map {}x{} texels, fitted first to the images' frames; --set 'render.background={{\"kind\": \"black\"}}' for none)",
+            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour {} (finest map {}x{} texels, {}; --set 'render.background={{\"kind\": \"black\"}}' for none)",
             if c.shell_radius > 0.0 && c.shell_shape == edgenerf::render::ShellShape::Box {
                 format!("where they leave the scene box{}", if c.shell_radius == 1.0 { String::new() } else { format!(" scaled by {}", c.shell_radius) })
             } else if c.shell_radius > 0.0 {
@@ -603,7 +603,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
                 "per direction".to_string()
             },
             2 * c.finest_height,
-            c.finest_height
+            c.finest_height,
+            match c.prefit {
+                edgenerf::render::Prefit::All => "fitted first to the images' frames",
+                edgenerf::render::Prefit::Coarsest => "its coarsest map fitted first to the images' frames",
+                edgenerf::render::Prefit::None => "not fitted to the images before training (render.learned_background.prefit = \"none\")",
+            }
         );
     }
     if let Some((confirmed, filled)) = trainer.stereo_coverage() {
