@@ -166,8 +166,9 @@ mod tests {
 
     /// `[with_cameras_inside]` of the Blender and object presets: an inside-out capture
     /// gets the learned background on the box itself (3 maps up to 64 x 128, started at
-    /// a plain colour, not from the frames, learning at 0.3 times the field's rate), a constant opacity penalty of 0.01, an occupancy
-    /// grid that forgets in half the steps (decay 0.9), the DTU preset's stereo
+    /// a plain colour, not from the frames, learning at 0.3 times the field's rate), a
+    /// constant opacity penalty of 0.01, an occupancy grid that forgets in half the
+    /// steps (decay 0.9), the DTU preset's stereo
     /// priors with planes across the up direction as well, and the foreground opacity
     /// prior at 0.01; a capture seen from outside keeps the preset's own background, penalty,
     /// grid and no stereo priors. The LLFF and DTU presets have no such table.

@@ -426,7 +426,9 @@ impl LearnedBackground {
     /// the coarsest's size or less, and a splat blurs the detail they exist to hold.
     /// Texels no direction reaches keep the median colour (robust to the object
     /// reaching into some frames). The optimizer state is reset, so training starts its
-    /// own.
+    /// own. `config.prefit` says which maps are fitted: all of them, the coarsest alone
+    /// (the finer ones then start at 0), or none, in which case the map and its
+    /// optimizer state are left as they are (every direction at `init` before training).
     pub fn prefit(&mut self, dirs: &[[f32; 3]], colors: &[[f32; 3]]) {
         self.prefit_with(dirs, colors, PREFIT_SHARPEN_ROUNDS);
     }
