@@ -111,6 +111,22 @@ mod tests {
         }
     }
 
+    /// Three views see a point from at most three directions: `sparse-small.toml` and the
+    /// object preset (whose `[field]` is the same) keep the colour to band 1 at every
+    /// view count, but inside-out captures keep band 3 (no gain on `room`'s and `den`'s
+    /// val views); the DTU preset's own colour is untouched.
+    #[test]
+    fn sparse_presets_colour_up_to_band_1() {
+        for views in [2, 3, 5, 8] {
+            assert_eq!(preset_for_views(SPARSE_SMALL, views).field.sh_degree, 1, "sparse-small, {views} views");
+            assert_eq!(preset_for_views(SPARSE_OBJECT, views).field.sh_degree, 1, "sparse-object, {views} views");
+        }
+        let mut c = RunConfig::from_text_for(SPARSE_SMALL.text, true, SPARSE_SMALL.path, None).unwrap();
+        assert!(!c.apply_with_cameras_inside(true, SPARSE_SMALL.path).unwrap().is_empty());
+        assert_eq!(c.field.sh_degree, 3, "inside-out captures keep band 3");
+        assert_eq!(preset_for_views(SPARSE_DTU, 3).field.sh_degree, 0);
+    }
+
     /// `sparse-small.toml` runs the pass from step 256 and drops faint samples with the
     /// bound on the opacity a ray may lose to them; the object preset, not measured with
     /// it, has no pass.
@@ -141,15 +157,15 @@ mod tests {
         }
     }
 
-    /// The object preset's `[[with_views]]`: with 2 views 800 steps of 2x2 patches and
-    /// colour up to band 3; from 3 views 2400 steps, band 1, half of each batch single
+    /// The object preset's `[[with_views]]`: with 2 views 800 steps of 2x2 patches (and
+    /// `[field]`'s colour up to band 1); from 3 views 2400 steps, half of each batch single
     /// pixels, and the decay (written for 800 steps) stretched to the run: it starts 3x
     /// later and ends where the 800-step run's ends; from 5 views the foreground
     /// opacity prior.
     #[test]
     fn object_preset_follows_the_view_count() {
         let short = preset_for_views(SPARSE_OBJECT, 2);
-        assert_eq!((short.train.iters, short.field.sh_degree, short.train.patch_share), (800, 3, 1.0));
+        assert_eq!((short.train.iters, short.field.sh_degree, short.train.patch_share), (800, 1, 1.0));
         let long = preset_for_views(SPARSE_OBJECT, 3);
         assert_eq!((long.train.iters, long.field.sh_degree, long.train.patch_share), (2400, 1, 0.5));
         let (s, l) = (&short.optim.schedule, &long.optim.schedule);
@@ -185,7 +201,7 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 14, "{}", preset.path);
+                    assert_eq!(applied.len(), 15, "{}", preset.path);
                     let dtu = preset_for_views(SPARSE_DTU, 3).priors;
                     let p = &c.priors;
                     assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_uniqueness), (dtu.stereo_depth, dtu.stereo_free_space, dtu.stereo_uniqueness), "{}", preset.path);
