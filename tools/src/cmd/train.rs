@@ -486,6 +486,56 @@ pub(crate) fn first_step_message(gpu: &Gpu) -> &'static str {
     }
 }
 
+/// A warning for a new run on the engine defaults (no `--config`, no preset: a dense
+/// run, `--no-preset`, or the MLP) on a CPU adapter: they are sized for a GPU (the grid's
+/// 5000 steps of 4096 rays through a 2^19-entry table take about 8 s a step, 11 hours,
+/// on a 2-core CPU), and a newcomer's first `edgenerf train SCENE` should not find that
+/// out from the progress bar's estimate. `None` when the run has a config or preset, or
+/// runs on a GPU.
+fn engine_defaults_on_cpu_hint(args: &Args, gpu: &Gpu, config: &RunConfig) -> Option<String> {
+    let preset = args.input.views.is_some() && !args.no_preset && config.backend == Backend::Grid;
+    let engine_defaults = !args.resume && args.config.is_none() && !preset;
+    if !(engine_defaults && gpu.adapter().is_cpu() && takes_hours_on_a_cpu(config)) {
+        return None;
+    }
+    Some(format!(
+        "note: no --config{}: the engine defaults, sized for a GPU ({} steps of {} rays), take hours on a CPU adapter \
+         such as this one; for a dense capture on a CPU use --config tools/configs/demo.toml (600 steps, minutes), \
+         for a few views --views K (a preset), or --iters / --max-seconds to bound this run",
+        if args.input.views.is_some() { "" } else { " and no --views" },
+        config.train.iters,
+        config.train.rays_per_batch
+    ))
+}
+
+/// Whether `config` asks a CPU adapter for hours: more than 4 M training rays (the
+/// demo: 0.6 M; the grid's defaults 20 M) and no time limit.
+fn takes_hours_on_a_cpu(config: &RunConfig) -> bool {
+    config.train.max_seconds.is_none() && config.train.iters * u64::from(config.train.rays_per_batch) > 4_000_000
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_the_gpu_sized_defaults_warn_on_a_cpu() {
+        let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        assert!(takes_hours_on_a_cpu(&RunConfig::default()), "the grid's defaults");
+        assert!(takes_hours_on_a_cpu(&RunConfig::defaults_for(Backend::Mlp)), "the MLP's defaults");
+        let mut bounded = RunConfig::default();
+        bounded.train.max_seconds = Some(60.0);
+        assert!(!takes_hours_on_a_cpu(&bounded));
+        bounded.train.max_seconds = None;
+        bounded.train.iters = 100;
+        assert!(!takes_hours_on_a_cpu(&bounded));
+        for name in ["demo.toml", "sparse-small.toml", "sparse-llff.toml", "sparse-dtu.toml", "sparse-object.toml"] {
+            let c = RunConfig::from_file(&repo.join("tools/configs").join(name)).unwrap();
+            assert!(!takes_hours_on_a_cpu(&c), "{name}");
+        }
+    }
+}
+
 /// The progress bar and its message, fed by the library's run loop; Ctrl-C asks it to stop.
 struct Progress {
     bar: ProgressBar,
@@ -591,6 +641,9 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         trainer.model.field.n_params(),
         args.out.display()
     );
+    if let Some(hint) = engine_defaults_on_cpu_hint(&args, &trainer.gpu, &config) {
+        eprintln!("{hint}");
+    }
     if let Some(bg) = &trainer.model.background {
         let c = bg.config();
         eprintln!(
