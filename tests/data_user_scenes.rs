@@ -221,6 +221,70 @@ fn nerfstudio_points_go_through_applied_transform() {
     assert!((scene.aabb[0] - colmap.aabb[0]).abs().max_element() < 1e-4 && (scene.aabb[1] - colmap.aabb[1]).abs().max_element() < 1e-4);
 }
 
+/// `ply_file_path` (ns-process-data's `sparse_pc.ply`, ASCII with 8-bit colours, in the
+/// file's frame) bounds the scene as the COLMAP model of the same points does, and wins
+/// over a `colmap/sparse/0` beside it; a binary little-endian cloud reads the same; a
+/// missing or empty cloud is an error that names the key.
+#[test]
+fn nerfstudio_reads_the_point_cloud_of_ply_file_path() {
+    let blender = Scene::load(creases(), &headers_only()).unwrap();
+    let (cams, imgs) = creases_colmap(&blender);
+    let points = box_points();
+    let dir = tempfile::tempdir().unwrap();
+    copy_images(&dir.path().join("images"));
+    write_text(&dir.path().join("sparse/0"), &cams, &imgs, &points);
+    let colmap = Scene::load(dir.path(), &headers_only()).unwrap();
+
+    let ns = tempfile::tempdir().unwrap();
+    copy_images(ns.path());
+    let t = creases_transforms(&blender, json!({"ply_file_path": "sparse_pc.ply"}));
+    std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
+    // As nerfstudio's create_ply_from_colmap writes it.
+    let mut ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property uint8 red\nproperty uint8 green\nproperty uint8 blue\nend_header\n",
+        points.len()
+    );
+    for p in &points {
+        ply += &format!("{:8} {:8} {:8} 120 30 200\n", p.x, p.y, p.z);
+    }
+    std::fs::write(ns.path().join("sparse_pc.ply"), &ply).unwrap();
+    // A COLMAP model beside it whose points lie elsewhere: the cloud wins.
+    let elsewhere: Vec<DVec3> = points.iter().map(|p| *p * 3.0).collect();
+    write_binary(&ns.path().join("colmap/sparse/0"), &cams, &imgs, &elsewhere);
+    let same_bounds = |scene: &Scene| {
+        (scene.near - colmap.near).abs() < 1e-4
+            && (scene.far - colmap.far).abs() < 1e-4
+            && (scene.aabb[0] - colmap.aabb[0]).abs().max_element() < 1e-4
+            && (scene.aabb[1] - colmap.aabb[1]).abs().max_element() < 1e-4
+    };
+    let scene = Scene::load(ns.path(), &headers_only()).unwrap();
+    assert!(same_bounds(&scene), "{} {} {:?} vs {} {} {:?}", scene.near, scene.far, scene.aabb, colmap.near, colmap.far, colmap.aabb);
+    // Without the key the COLMAP model's (different) points bound it.
+    let t = creases_transforms(&blender, json!({}));
+    std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
+    assert!(!same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap()));
+
+    // Binary little-endian, in a subfolder, as other exporters write it.
+    let cloud = edgenerf::mesh::TriMesh { positions: points.iter().map(|p| p.as_vec3()).collect(), ..Default::default() };
+    std::fs::create_dir_all(ns.path().join("pc")).unwrap();
+    std::fs::write(ns.path().join("pc/points.ply"), edgenerf::mesh::ply::points_to_ply(&cloud).unwrap()).unwrap();
+    let t = creases_transforms(&blender, json!({"ply_file_path": "pc/points.ply"}));
+    std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
+    assert!(same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap()));
+
+    // A key whose file is missing, or a cloud without vertices: errors that say what to do.
+    let t = creases_transforms(&blender, json!({"ply_file_path": "missing.ply"}));
+    std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
+    let e = Scene::load(ns.path(), &headers_only()).err().expect("a missing point cloud is an error").to_string();
+    assert!(e.contains("ply_file_path") && e.contains("missing.ply") && e.contains("remove the key"), "{e}");
+    std::fs::write(ns.path().join("empty.ply"), "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n").unwrap();
+    let t = creases_transforms(&blender, json!({"ply_file_path": "empty.ply"}));
+    std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
+    let e = Scene::load(ns.path(), &headers_only()).err().expect("an empty point cloud is an error").to_string();
+    assert!(e.contains("no vertices"), "{e}");
+}
+
 // ------------------------------------------------------------------ distorted lenses
 
 /// An OpenGL camera-to-world at `eye` looking at `target` (`-z` toward it, `+y` up-ish).

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 const RULES: &[(&str, &[&str], &[&str])] = &[
     ("gpu", &[], &[]),
     ("rng", &[], &[]),
-    ("data", &[], &[]),
+    ("data", &["mesh"], &[]),
     ("edges", &["data"], &[]),
     ("layout", &["gpu"], &[]),
     ("optim", &["gpu"], &["rng"]),

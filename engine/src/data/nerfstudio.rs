@@ -13,10 +13,15 @@
 //!   `applied_scale`, if present) to bring the COLMAP model's points into the file's
 //!   frame. nerfstudio's own orientation, centring and scaling at training time
 //!   (`auto_orient_and_center_poses`) are not applied: the scene keeps the file's frame.
-//! * Points: the COLMAP model `ns-process-data` leaves beside the file
-//!   (`colmap/sparse/0`), else a `sparse/0` or `sparse` model in the same folder, if
-//!   any; they bound the scene ([`super::bounds`]). `ply_file_path` is not read. The
-//!   top-level `near`, `far` and `aabb` keys, when present, win over the points.
+//! * Points: the PLY point cloud named by `ply_file_path` (relative to the folder, as
+//!   `ns-process-data` writes `sparse_pc.ply`; ASCII or binary little-endian, `x y z`
+//!   per vertex, already in the file's frame as nerfstudio reads it, so neither
+//!   `applied_transform` nor `applied_scale` applies to it); without that key the COLMAP
+//!   model `ns-process-data` leaves beside the file (`colmap/sparse/0`), else a
+//!   `sparse/0` or `sparse` model in the same folder, if any. They bound the scene
+//!   ([`super::bounds`]). A `ply_file_path` whose file is missing or not a PLY point
+//!   cloud is an error (nerfstudio would fail on it too). The top-level `near`, `far`
+//!   and `aabb` keys, when present, win over the points.
 //! * Frames are sorted by `file_path` (as nerfstudio sorts them). Split: the file's
 //!   `train_filenames` and `test_filenames` (else `val_filenames`) when present
 //!   (training frames default to every frame not listed for testing); otherwise
@@ -66,6 +71,8 @@ struct Transforms {
     near: Option<f32>,
     far: Option<f32>,
     aabb: Option<[[f32; 3]; 2]>,
+    /// A PLY point cloud in the file's frame (`sparse_pc.ply` of `ns-process-data`).
+    ply_file_path: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -246,13 +253,18 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         views.push(view);
     }
 
-    // Points of the COLMAP model beside the file, in the file's frame.
+    // The file's point cloud, else the COLMAP model beside the file brought into the
+    // file's frame.
     let to_file = applied_map(&t, &json)?;
     let mut points = Vec::new();
-    for dir in [root.join("colmap"), root.to_path_buf()] {
-        if let Ok((model, binary)) = model_dir(&dir) {
-            points = read_model(&model, binary)?.points.into_iter().map(&to_file).collect();
-            break;
+    if let Some(rel) = &t.ply_file_path {
+        points = read_point_cloud(&resolve(root, rel), &json)?;
+    } else {
+        for dir in [root.join("colmap"), root.to_path_buf()] {
+            if let Ok((model, binary)) = model_dir(&dir) {
+                points = read_model(&model, binary)?.points.into_iter().map(&to_file).collect();
+                break;
+            }
         }
     }
     let capture = Capture {
@@ -264,6 +276,22 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         background: any_alpha.then_some(opts.background),
     };
     finish_capture(root, SceneFormat::Nerfstudio, &json, capture)
+}
+
+/// The vertices of the PLY point cloud at `path` (`ply_file_path` of `json`): at least
+/// one, each finite (the reader refuses others).
+fn read_point_cloud(path: &Path, json: &Path) -> Result<Vec<Vec3>, DataError> {
+    let bytes = std::fs::read(path).map_err(|e| {
+        DataError::invalid(
+            json,
+            format!("ply_file_path names {}, which cannot be read ({e}); restore the file or remove the key", path.display()),
+        )
+    })?;
+    let cloud = crate::mesh::ply::read_ply(&bytes).map_err(|e| DataError::invalid(path, format!("the point cloud of ply_file_path: {e}")))?;
+    if cloud.positions.is_empty() {
+        return Err(DataError::invalid(path, "the point cloud of ply_file_path has no vertices; remove the key or write the points"));
+    }
+    Ok(cloud.positions)
 }
 
 /// A mask or depth map `values` of size `got` from `path`, brought to the image's
