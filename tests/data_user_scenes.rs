@@ -205,10 +205,7 @@ fn nerfstudio_points_go_through_applied_transform() {
     let blender = Scene::load(creases(), &headers_only()).unwrap();
     let (cams, imgs) = creases_colmap(&blender);
     let points = box_points();
-    let dir = tempfile::tempdir().unwrap();
-    copy_images(&dir.path().join("images"));
-    write_text(&dir.path().join("sparse/0"), &cams, &imgs, &points);
-    let colmap = Scene::load(dir.path(), &headers_only()).unwrap();
+    let colmap = colmap_scene_of(&cams, &imgs, &points);
 
     let ns = tempfile::tempdir().unwrap();
     copy_images(ns.path());
@@ -217,8 +214,23 @@ fn nerfstudio_points_go_through_applied_transform() {
     let original: Vec<DVec3> = points.iter().map(|p| DVec3::new(p.x, -p.z, p.y)).collect();
     write_binary(&ns.path().join("colmap/sparse/0"), &cams, &imgs, &original);
     let scene = Scene::load(ns.path(), &headers_only()).unwrap();
-    assert!((scene.near - colmap.near).abs() < 1e-4 && (scene.far - colmap.far).abs() < 1e-4, "{} {} vs {} {}", scene.near, scene.far, colmap.near, colmap.far);
-    assert!((scene.aabb[0] - colmap.aabb[0]).abs().max_element() < 1e-4 && (scene.aabb[1] - colmap.aabb[1]).abs().max_element() < 1e-4);
+    assert!(same_bounds(&scene, &colmap), "{} {} {:?} vs {} {} {:?}", scene.near, scene.far, scene.aabb, colmap.near, colmap.far, colmap.aabb);
+}
+
+/// The COLMAP text model of creases' cameras with `points`, loaded (headers only).
+fn colmap_scene_of(cams: &[Cam], imgs: &[Img], points: &[DVec3]) -> Scene {
+    let dir = tempfile::tempdir().unwrap();
+    copy_images(&dir.path().join("images"));
+    write_text(&dir.path().join("sparse/0"), cams, imgs, points);
+    Scene::load(dir.path(), &headers_only()).unwrap()
+}
+
+/// Whether two scenes have the same near, far and box, to 1e-4.
+fn same_bounds(a: &Scene, b: &Scene) -> bool {
+    (a.near - b.near).abs() < 1e-4
+        && (a.far - b.far).abs() < 1e-4
+        && (a.aabb[0] - b.aabb[0]).abs().max_element() < 1e-4
+        && (a.aabb[1] - b.aabb[1]).abs().max_element() < 1e-4
 }
 
 /// `ply_file_path` (ns-process-data's `sparse_pc.ply`, ASCII with 8-bit colours, in the
@@ -230,10 +242,7 @@ fn nerfstudio_reads_the_point_cloud_of_ply_file_path() {
     let blender = Scene::load(creases(), &headers_only()).unwrap();
     let (cams, imgs) = creases_colmap(&blender);
     let points = box_points();
-    let dir = tempfile::tempdir().unwrap();
-    copy_images(&dir.path().join("images"));
-    write_text(&dir.path().join("sparse/0"), &cams, &imgs, &points);
-    let colmap = Scene::load(dir.path(), &headers_only()).unwrap();
+    let colmap = colmap_scene_of(&cams, &imgs, &points);
 
     let ns = tempfile::tempdir().unwrap();
     copy_images(ns.path());
@@ -252,18 +261,12 @@ fn nerfstudio_reads_the_point_cloud_of_ply_file_path() {
     // A COLMAP model beside it whose points lie elsewhere: the cloud wins.
     let elsewhere: Vec<DVec3> = points.iter().map(|p| *p * 3.0).collect();
     write_binary(&ns.path().join("colmap/sparse/0"), &cams, &imgs, &elsewhere);
-    let same_bounds = |scene: &Scene| {
-        (scene.near - colmap.near).abs() < 1e-4
-            && (scene.far - colmap.far).abs() < 1e-4
-            && (scene.aabb[0] - colmap.aabb[0]).abs().max_element() < 1e-4
-            && (scene.aabb[1] - colmap.aabb[1]).abs().max_element() < 1e-4
-    };
     let scene = Scene::load(ns.path(), &headers_only()).unwrap();
-    assert!(same_bounds(&scene), "{} {} {:?} vs {} {} {:?}", scene.near, scene.far, scene.aabb, colmap.near, colmap.far, colmap.aabb);
+    assert!(same_bounds(&scene, &colmap), "{} {} {:?} vs {} {} {:?}", scene.near, scene.far, scene.aabb, colmap.near, colmap.far, colmap.aabb);
     // Without the key the COLMAP model's (different) points bound it.
     let t = creases_transforms(&blender, json!({}));
     std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
-    assert!(!same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap()));
+    assert!(!same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap(), &colmap));
 
     // Binary little-endian, in a subfolder, as other exporters write it.
     let cloud = edgenerf::mesh::TriMesh { positions: points.iter().map(|p| p.as_vec3()).collect(), ..Default::default() };
@@ -271,17 +274,17 @@ fn nerfstudio_reads_the_point_cloud_of_ply_file_path() {
     std::fs::write(ns.path().join("pc/points.ply"), edgenerf::mesh::ply::points_to_ply(&cloud).unwrap()).unwrap();
     let t = creases_transforms(&blender, json!({"ply_file_path": "pc/points.ply"}));
     std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
-    assert!(same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap()));
+    assert!(same_bounds(&Scene::load(ns.path(), &headers_only()).unwrap(), &colmap));
 
     // A key whose file is missing, or a cloud without vertices: errors that say what to do.
     let t = creases_transforms(&blender, json!({"ply_file_path": "missing.ply"}));
     std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
-    let e = Scene::load(ns.path(), &headers_only()).err().expect("a missing point cloud is an error").to_string();
+    let e = Scene::load(ns.path(), &headers_only()).expect_err("a missing point cloud is an error").to_string();
     assert!(e.contains("ply_file_path") && e.contains("missing.ply") && e.contains("remove the key"), "{e}");
     std::fs::write(ns.path().join("empty.ply"), "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n").unwrap();
     let t = creases_transforms(&blender, json!({"ply_file_path": "empty.ply"}));
     std::fs::write(ns.path().join("transforms.json"), t.to_string()).unwrap();
-    let e = Scene::load(ns.path(), &headers_only()).err().expect("an empty point cloud is an error").to_string();
+    let e = Scene::load(ns.path(), &headers_only()).expect_err("an empty point cloud is an error").to_string();
     assert!(e.contains("no vertices"), "{e}");
 }
 
