@@ -93,12 +93,16 @@ mod tests {
     /// 1600 steps, the visibility pass's opacity floor of 0.05 and the stereo priors;
     /// the protocol's 9 views get band-2 colour, 4800 steps, a floor of 0.02 and no
     /// stereo priors. The foreground opacity prior is on at every view count (unlike
-    /// the object preset's). The decay keeps its shape at every length.
+    /// the object preset's). The decay keeps its shape at every length. The grid's
+    /// warm-up forgets at 0.7 below 9 views and at the grid's own 0.95 from 9.
     #[test]
     fn dtu_preset_follows_the_view_count() {
         for (views, sh, iters, min_alpha, stereo) in [(3, 0, 1600, 0.05, true), (8, 0, 1600, 0.05, true), (9, 2, 4800, 0.02, false)] {
             let c = preset_for_views(SPARSE_DTU, views);
             assert_eq!((c.field.sh_degree, c.train.iters), (sh, iters), "{views} views");
+            let warmup_decay = if views < 9 { 0.7 } else { 0.95 };
+            assert_eq!((c.sampler.warmup_decay, c.sampler.decay), (Some(warmup_decay), 0.95), "{views} views");
+            assert_eq!((c.sampler.decay_at(0), c.sampler.decay_at(c.sampler.warmup_steps)), (warmup_decay, 0.95), "{views} views");
             assert_eq!(c.sampler.visibility.min_alpha, min_alpha, "{views} views");
             let want = if stereo { (0.1, 0.03, 0.9) } else { (0.0, 0.0, 0.9) };
             assert_eq!((c.priors.stereo_depth, c.priors.stereo_free_space, c.priors.stereo_uniqueness), want, "{views} views");
@@ -181,7 +185,7 @@ mod tests {
     /// gets the learned background on the box itself (3 maps up to 64 x 128, started at
     /// a plain colour, not from the frames, learning at 0.3 times the field's rate), a
     /// constant opacity penalty of 0.01, an occupancy grid that forgets in half the
-    /// steps (decay 0.9), the DTU preset's stereo
+    /// steps (decay 0.9, 0.7 during the warm-up), the DTU preset's stereo
     /// priors with planes across the up direction as well, and the foreground opacity
     /// prior at 0.01, and colour up to band 3 (in the object preset its 3-view table,
     /// applied after, keeps band 1); a capture seen from outside keeps the preset's own
@@ -200,7 +204,8 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 15, "{}", preset.path);
+                    assert_eq!(applied.len(), 16, "{}", preset.path);
+                    assert_eq!(c.sampler.warmup_decay, Some(0.7), "{}: the warm-up forgets faster inside out", preset.path);
                     let dtu = preset_for_views(SPARSE_DTU, 3).priors;
                     let p = &c.priors;
                     assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_uniqueness), (dtu.stereo_depth, dtu.stereo_free_space, dtu.stereo_uniqueness), "{}", preset.path);
@@ -219,6 +224,7 @@ mod tests {
                     assert_eq!(c.field.sh_degree, 1, "{}: colour up to band 1 outside", preset.path);
                     assert_eq!((c.priors.sparsity, c.priors.sparsity_steps, c.sampler.decay), (sparsity, steps, decay), "{}", preset.path);
                     assert_eq!(decay, 0.95, "{}: the grid's own decay outside", preset.path);
+                    assert_eq!(c.sampler.warmup_decay, None, "{}: the warm-up keeps the grid's decay outside", preset.path);
                     assert!(!c.priors.stereo_on(), "{}: no stereo priors outside", preset.path);
                     assert_eq!(c.priors.foreground_opacity, 0.0, "{}: 3 views seen from outside leave the foreground alone", preset.path);
                 }
