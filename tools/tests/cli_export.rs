@@ -62,12 +62,21 @@ fn export_mesh_and_points_of_a_short_run_and_eval_scores_the_mesh() {
     let level = format!("{}", max / 2.0);
     assert!(!run.join("mesh.ply").exists(), "nothing written on an error");
 
+    // Just under the largest density the surface is a speck: written, with a note that
+    // a lower level meshes more.
+    let speck = run.join("speck.ply");
+    let o = edgenerf(&["export", "mesh", r, "--resolution", "40", "--level", &format!("{}", max * 0.99), "--out", speck.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(o.status.success() && speck.exists(), "{t}");
+    assert!(t.contains("a lower --level meshes"), "{t}");
+
     // The mesh: beside the checkpoint by default, every vertex in the box, colours and
     // unit normals per vertex, the counts printed.
     let o = edgenerf(&["export", "mesh", r, "--resolution", "40", "--level", &level]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("grid 41x41x18 points"), "{t}");
+    assert!(!t.contains("a lower --level"), "the scene's surfaces are meshed: no note\n{t}");
     let mesh = read(&run.join("mesh.ply"));
     assert_eq!(mesh.positions.len(), count_before(&t, "vertices"), "{t}");
     assert_eq!(mesh.triangles.len(), count_before(&t, "triangles"), "{t}");

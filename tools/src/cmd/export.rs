@@ -182,8 +182,22 @@ fn mesh(args: MeshArgs, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         e.non_manifold
     );
     println!("wrote {} ({:.1} MB)", out.display(), bytes.len() as f64 / 1e6);
+    let d = hi - lo;
+    let box_area = 2.0 * f64::from(d.x * d.y + d.y * d.z + d.z * d.x);
+    if mesh.area() < NEARLY_EMPTY * box_area {
+        let [a, b] = x.density_range;
+        println!(
+            "note: the surface covers {:.2} % of the box's faces' area: the density (from {a} to {b} here) crosses level {level} only at its peaks; a lower --level meshes the field's softer surfaces",
+            100.0 * mesh.area() / box_area
+        );
+    }
     Ok(())
 }
+
+/// A mesh whose area is under this fraction of its box's surface gets a note: the
+/// level is above most of the field's surfaces (a 3-view forward scene's field can be
+/// soft everywhere, its surfaces spread over several marching steps).
+const NEARLY_EMPTY: f64 = 0.01;
 
 /// `--views` of `points`: a split name or comma-separated view indices.
 fn parse_views(scene: &edgenerf::data::Scene, s: &str) -> anyhow::Result<Vec<usize>> {
