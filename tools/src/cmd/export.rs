@@ -170,6 +170,7 @@ fn mesh(args: MeshArgs, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     let bytes = mesh_to_ply(&mesh)?;
     write(&out, &bytes)?;
     let e = mesh.edge_counts();
+    let area = mesh.area();
     let [blo, bhi] = mesh.bounds().unwrap();
     let [nx, ny, nz] = x.dims;
     println!("box [{lo}, {hi}], grid {nx}x{ny}x{nz} points, density level {level:.3}{}", if args.level.is_none() { " (default: ln 2 / sampler step)" } else { "" });
@@ -177,18 +178,18 @@ fn mesh(args: MeshArgs, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
         "mesh: {} vertices, {} triangles, area {:.3}, {} border edges, {} non-manifold edges; bounds [{blo}, {bhi}]",
         mesh.positions.len(),
         mesh.triangles.len(),
-        mesh.area(),
+        area,
         e.boundary,
         e.non_manifold
     );
     println!("wrote {} ({:.1} MB)", out.display(), bytes.len() as f64 / 1e6);
     let d = hi - lo;
     let box_area = 2.0 * f64::from(d.x * d.y + d.y * d.z + d.z * d.x);
-    if mesh.area() < NEARLY_EMPTY * box_area {
+    if area < NEARLY_EMPTY * box_area {
         let [a, b] = x.density_range;
         println!(
             "note: the surface covers {:.2} % of the box's faces' area: the density (from {a} to {b} here) crosses level {level} only at its peaks; a lower --level meshes the field's softer surfaces",
-            100.0 * mesh.area() / box_area
+            100.0 * area / box_area
         );
     }
     Ok(())
