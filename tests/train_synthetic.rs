@@ -402,6 +402,54 @@ fn evaluation_renders_every_test_view() {
     assert_eq!(renders[0].1.rgb.len(), (w * h) as usize);
 }
 
+/// Rendering in segments (`sampler.render_segment`) gives the one-pass image on fewer
+/// samples: a field made opaque by its density's bias (4: about 9 samples to opacity)
+/// stops its rays in the first segment; at a bias of 3 (about 23) the first segment
+/// turns no ray opaque, so the rest of every ray goes in one more segment, restarted
+/// where the first stopped. Both renders of a test view agree up to the renderer's
+/// threshold either way.
+#[test]
+fn segmented_rendering_matches_one_pass_on_fewer_samples() {
+    let gpu = test_gpu(false);
+    let render = |bias: f32, segment: u32| {
+        let mut config = tiny_config("creases", 1);
+        config.set(&format!("field.density_bias={bias}")).unwrap();
+        config.set(&format!("sampler.render_segment={segment}")).unwrap();
+        let scene = load(&config);
+        let view = scene.split.test[0];
+        let mut trainer = Trainer::new(gpu.clone(), scene, config).unwrap();
+        trainer.model.render_view(&gpu, &trainer.scene, view).unwrap()
+    };
+    for bias in [4.0, 3.0] {
+        let (one, seg) = (render(bias, 0), render(bias, 16));
+        eprintln!("bias {bias}: one pass {} samples, in segments {}", one.samples, seg.samples);
+        assert!(one.opacity.iter().filter(|&&a| a > 0.999).count() * 2 > one.opacity.len(), "the test needs opaque rays");
+        if bias == 4.0 {
+            assert!(seg.samples * 2 < one.samples, "segments shade {} samples, one pass {}", seg.samples, one.samples);
+        } else {
+            assert!(seg.samples <= one.samples && seg.samples * 10 > one.samples * 9, "{} vs {}", seg.samples, one.samples);
+        }
+        let far = one.depth.iter().cloned().fold(0.0f32, f32::max).max(1.0);
+        let close = |a: f32, b: f32, tol: f32| (a - b).abs() <= tol;
+        let mut normal_diff = Vec::with_capacity(one.normal.len());
+        for i in 0..one.rgb.len() {
+            let ok = (0..3).all(|c| close(one.rgb[i][c], seg.rgb[i][c], 1e-3))
+                && close(one.opacity[i], seg.opacity[i], 1e-3)
+                && close(one.depth[i], seg.depth[i], 1e-3 * far);
+            assert!(ok, "bias {bias}, pixel {i}: one pass {:?} {} {}, segments {:?} {} {}", one.rgb[i], one.opacity[i], one.depth[i], seg.rgb[i], seg.opacity[i], seg.depth[i]);
+            normal_diff.push((0..3).map(|c| (one.normal[i][c] - seg.normal[i][c]).abs()).fold(0.0f32, f32::max));
+        }
+        // A segment restarts at its predecessor's last sample's far end, which rounds
+        // within an ulp of where one pass's grid puts it; the density is continuous
+        // there, but its gradient (the normal) jumps across the hash grid's cell faces,
+        // so a sample that lands on one may flip its normal.
+        normal_diff.sort_by(f32::total_cmp);
+        let (p99, max) = (normal_diff[normal_diff.len() * 99 / 100], *normal_diff.last().unwrap());
+        eprintln!("bias {bias}: normal difference 99th percentile {p99:.2e}, largest {max:.2e}");
+        assert!(p99 < 1e-3 && max < 0.05, "bias {bias}, normals: 99th percentile {p99}, largest {max}");
+    }
+}
+
 /// A 3-view patch run on `creases`: `lambda1 = lambda_color`, `lambda2 = lambda3 =
 /// lambda`. Returns the `(L_z, L_n)` of each of `iters` steps, all on one fixed batch
 /// when `fixed` (else the trainer's own random batches).

@@ -60,17 +60,20 @@ mod tests {
         assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_OBJECT.path);
         // The object preset is sparse-small.toml with its opacity penalty and its
         // [[with_views]] table before it, without sparse-small.toml's visibility pass
-        // (its table up to the blank line after it): not measured on captures without
-        // alpha.
-        let mut in_visibility = false;
+        // (its table up to the blank line after it), its rendering in segments (the
+        // comment and key) and that key's reset inside out: not measured on captures
+        // without alpha.
+        let (mut in_visibility, mut in_segments) = (false, false);
         let small = SPARSE_SMALL
             .text
             .lines()
             .skip_while(|l| !l.starts_with("[field]"))
             .filter(|l| {
                 in_visibility |= l.starts_with("[sampler.visibility]");
-                let keep = !in_visibility;
+                in_segments |= l.starts_with("# Renders march each ray in segments");
+                let keep = !in_visibility && !in_segments && !l.contains("sampler.render_segment=0");
                 in_visibility &= !l.is_empty();
+                in_segments &= !l.starts_with("render_segment =");
                 keep
             })
             .collect::<Vec<_>>();
@@ -136,6 +139,10 @@ mod tests {
         let small = preset_for_views(SPARSE_SMALL, 3).sampler.visibility;
         assert!(small.train && !small.render);
         assert_eq!((small.min_alpha, small.max_dropped_opacity, small.start_step, small.min_alpha_start_step), (0.01, 0.05, 64, 64));
+        // Objects render in segments (DTU too); the object preset, not measured with them, in one pass.
+        assert_eq!(preset_for_views(SPARSE_SMALL, 3).sampler.render_segment, 16);
+        assert_eq!(preset_for_views(SPARSE_DTU, 3).sampler.render_segment, 16);
+        assert_eq!(preset_for_views(SPARSE_OBJECT, 3).sampler.render_segment, 0);
         for views in [2, 3, 5, 8] {
             assert!(!preset_for_views(SPARSE_OBJECT, views).sampler.visibility.train, "{views} views");
         }
@@ -204,7 +211,10 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    assert_eq!(applied.len(), 18, "{}", preset.path);
+                    // sparse-small.toml also renders in one pass again inside out.
+                    let n_set = if preset.path == SPARSE_SMALL.path { 19 } else { 18 };
+                    assert_eq!(applied.len(), n_set, "{}", preset.path);
+                    assert_eq!(c.sampler.render_segment, 0, "{}: one pass inside out", preset.path);
                     assert_eq!(c.sampler.warmup_decay, Some(0.7), "{}: the warm-up forgets faster inside out", preset.path);
                     let v = &c.sampler.visibility;
                     assert_eq!((v.start_step, v.min_alpha_start_step), (256, 256), "{}: the visibility pass from step 256 inside out", preset.path);

@@ -86,8 +86,13 @@ impl<T: Pod> GpuBuffer<T> {
     /// Copies the buffer back to the host, waiting for all submitted work first (a
     /// [`ReadBatch`](super::ReadBatch) of one).
     pub fn read(&self, gpu: &Gpu) -> Result<Vec<T>, GpuError> {
+        self.read_prefix(gpu, self.len)
+    }
+
+    /// [`GpuBuffer::read`] of the first `len` elements only (at most the length).
+    pub fn read_prefix(&self, gpu: &Gpu, len: usize) -> Result<Vec<T>, GpuError> {
         let mut batch = super::ReadBatch::new();
-        let slot = batch.add(self, self.len);
+        let slot = batch.add(self, len);
         Ok(batch.read(gpu)?.get(&slot))
     }
 }

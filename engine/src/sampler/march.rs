@@ -160,11 +160,14 @@ impl Sampler {
         jitter_seed: Option<u32>,
     ) -> Result<(), SamplerError> {
         let step = self.step;
-        self.record_sample_with_step(enc, march, rays, batch, jitter_seed, step)
+        self.record_sample_with_step(enc, march, rays, batch, jitter_seed, step, None)
     }
 
     /// [`Sampler::record_sample`] marching at `step` instead of the configured step
-    /// (the coarse start of training, [`crate::sampler::SamplerConfig::anneal_samples_per_cell`]).
+    /// (the coarse start of training, [`crate::sampler::SamplerConfig::anneal_samples_per_cell`]),
+    /// keeping at most `max_per_ray` samples a ray (the nearest; `None`: the configured
+    /// `max_samples_per_ray`), as the segments of [`crate::train::model::Model::render_rays`] do.
+    #[allow(clippy::too_many_arguments)]
     pub fn record_sample_with_step(
         &mut self,
         enc: &mut Encoder,
@@ -173,7 +176,12 @@ impl Sampler {
         batch: &SampleBatch,
         jitter_seed: Option<u32>,
         step: f32,
+        max_per_ray: Option<u32>,
     ) -> Result<(), SamplerError> {
+        let max_per_ray = max_per_ray.unwrap_or(self.config.max_samples_per_ray);
+        if max_per_ray == 0 {
+            return Err(SamplerError::Config("at least one sample a ray must be allowed".into()));
+        }
         if !(step > 0.0 && step.is_finite()) {
             return Err(SamplerError::Config(format!("marching step {step} must be finite and > 0")));
         }
@@ -201,7 +209,7 @@ impl Sampler {
             geom,
             n_rays,
             capacity: batch.capacity,
-            max_per_ray: config.max_samples_per_ray,
+            max_per_ray,
             occupancy,
             step,
             max_intervals: config.max_intervals,
@@ -274,7 +282,7 @@ mod tests {
         let ray_buf = GpuBuffer::from_slice(gpu, "rays", rays).unwrap();
         let batch = SampleBatch::new(gpu, rays.len() as u32, capacity).unwrap();
         let step = step.unwrap_or(sampler.step_size());
-        gpu.submit_recorded(|enc| sampler.record_sample_with_step(enc, march, &ray_buf, &batch, jitter, step)).unwrap();
+        gpu.submit_recorded(|enc| sampler.record_sample_with_step(enc, march, &ray_buf, &batch, jitter, step, None)).unwrap();
         let count = batch.count.read(gpu).unwrap();
         let n = count[0] as usize;
         Out {
@@ -407,7 +415,7 @@ mod tests {
         let ray_buf = GpuBuffer::from_slice(&gpu, "rays", &rays).unwrap();
         let batch = SampleBatch::new(&gpu, rays.len() as u32, 1024).unwrap();
         for bad in [0.0, -1.0, f32::NAN] {
-            assert!(sampler.record_sample_with_step(&mut enc, March::Uniform, &ray_buf, &batch, None, bad).is_err());
+            assert!(sampler.record_sample_with_step(&mut enc, March::Uniform, &ray_buf, &batch, None, bad, None).is_err());
         }
     }
 

@@ -172,6 +172,17 @@ pub struct SamplerConfig {
     pub steps_per_diagonal: f32,
     /// Samples kept per ray (the nearest).
     pub max_samples_per_ray: u32,
+    /// Rendering (evaluation, `render`, the viewer; not training) marches each ray in
+    /// segments, the first of this many samples, each next twice as long, the field
+    /// shading one segment before the next is marched from where it stopped; a ray
+    /// stops once its transmittance falls under the renderer's threshold, so the
+    /// samples behind an opaque surface are never shaded. The image is the one pass's
+    /// up to that threshold. 0 (the default): one pass over every marched sample.
+    /// Ignored where `visibility.render` renders through the visibility pass. It pays
+    /// where rays turn opaque (objects: `sparse-small.toml` sets 16), and costs a
+    /// round trip a segment where they do not (fog, a painted box, forward-facing
+    /// scenes; docs/performance.md, "Rendering in segments").
+    pub render_segment: u32,
     /// A coarse start: while `train.level_anneal` has only the coarse levels of a grid
     /// field switched on, training marches at `cell / anneal_samples_per_cell`, `cell`
     /// being the finest active level's cell edge (along the box's shortest axis), when
@@ -270,6 +281,7 @@ impl Default for SamplerConfig {
             step_size: 0.0,
             steps_per_diagonal: DEFAULT_STEPS_PER_DIAGONAL,
             max_samples_per_ray: 1024,
+            render_segment: 0,
             anneal_samples_per_cell: 0.0,
             max_intervals: 16,
             seen_cells_only: false,

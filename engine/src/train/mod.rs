@@ -72,6 +72,7 @@ pub mod output;
 pub mod pipeline;
 pub mod profile;
 pub mod random_poses;
+pub mod render_segments;
 pub mod rays;
 pub mod regnerf;
 pub mod reprojection_views;

@@ -397,13 +397,13 @@ impl Model {
         };
         match (&bufs.visibility, visible) {
             (Some(v), Some(rule)) => {
-                self.sampler.record_sample_with_step(enc, march, &bufs.rays, &v.marched, jitter_seed, step)?;
+                self.sampler.record_sample_with_step(enc, march, &bufs.rays, &v.marched, jitter_seed, step, None)?;
                 // The marched samples' densities in `field_out`: the pass reads them
                 // before the forward of the kept samples overwrites the buffer.
                 self.field.record_sample_density(enc, &v.marched, &bufs.field_out)?;
                 v.pass.record(enc, &v.marched, &bufs.field_out, &bufs.batch, rule)?;
             }
-            _ => self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, jitter_seed, step)?,
+            _ => self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, jitter_seed, step, None)?,
         }
         Ok(())
     }
@@ -423,8 +423,14 @@ impl Model {
             for chunk in rays.chunks(RENDER_CHUNK as usize) {
                 let mut padded = chunk.to_vec();
                 padded.resize(RENDER_CHUNK as usize, GpuRay::default());
-                bufs.rays.write(gpu, &padded);
                 self.write_ray_inputs(gpu, &padded, &[], &bufs.render_out.aux);
+                if self.renders_in_segments() {
+                    let (rendered, n) = self.render_segments(gpu, &bufs, &padded, normals)?;
+                    out.extend_from_slice(&rendered[..chunk.len()]);
+                    samples += n;
+                    continue;
+                }
+                bufs.rays.write(gpu, &padded);
                 self.sample_and_shade(gpu, &bufs, None, normals)?;
                 let mut enc = gpu.encoder();
                 self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
@@ -436,6 +442,59 @@ impl Model {
         })();
         self.render_buffers = Some(bufs);
         result
+    }
+
+    /// Whether [`Model::render_rays`] renders in segments (`sampler.render_segment`;
+    /// not through the visibility pass).
+    fn renders_in_segments(&self) -> bool {
+        let sampler = &self.config.sampler;
+        sampler.render_segment > 0 && !sampler.visibility.render
+    }
+
+    /// One chunk of rays (their renderer inputs already in `bufs`) rendered in
+    /// segments ([`super::render_segments`]): the outputs and the samples shaded.
+    fn render_segments(&mut self, gpu: &Gpu, bufs: &BatchBuffers, rays: &[GpuRay], normals: bool) -> Result<(Vec<RayOutput>, u64), TrainError> {
+        use super::render_segments::{FEW_OPAQUE, SegmentedRays};
+        let sampler = &self.config.sampler;
+        let max = sampler.max_samples_per_ray.min(bufs.batch.capacity / bufs.batch.n_rays).max(1);
+        let mut cap = sampler.render_segment.min(max);
+        let step = self.sampler.step_size();
+        // The background each ray is composited over (the renderer's, launch seed 0).
+        let background = match &self.background {
+            Some(bg) => bg.colors(&bg.ray_dirs(rays)),
+            None => (0..rays.len() as u32).map(|r| crate::render::background_of(&self.renderer.config().background, 0, r).unwrap_or([0.0; 3])).collect(),
+        };
+        let mut segments = SegmentedRays::new(rays, background, self.renderer.config().transmittance_threshold);
+        let mut samples = 0u64;
+        while segments.any_active() && cap > 0 {
+            bufs.rays.write(gpu, segments.rays());
+            self.march_capped(gpu, bufs, step, cap)?;
+            self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
+            let mut enc = gpu.encoder();
+            self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
+            let mut read = crate::gpu::ReadBatch::new();
+            let count = read.add(&bufs.batch.count, 1);
+            let outs = read.add(&bufs.render_out.rays, rays.len());
+            let ranges = read.add(&bufs.batch.ranges, rays.len());
+            let back = read.read_after(enc)?;
+            let n = back.get(&count)[0];
+            let marched = if n > 0 { bufs.batch.samples.read_prefix(gpu, n as usize)? } else { Vec::new() };
+            let (opaque, of) = segments.add(&back.get(&outs), &back.get(&ranges), &marched, cap);
+            samples += n as u64;
+            let left = max - segments.used().min(max);
+            cap = if opaque * FEW_OPAQUE < of { left } else { (2 * cap).min(left) };
+        }
+        Ok((segments.finish(), samples))
+    }
+
+    /// Marches `bufs.rays` into `bufs.batch`, at most `cap` samples a ray, no jitter.
+    fn march_capped(&mut self, gpu: &Gpu, bufs: &BatchBuffers, step: f32, cap: u32) -> Result<(), TrainError> {
+        let march = match self.config.sampler.mode {
+            SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
+            SamplerMode::Uniform => March::Uniform,
+        };
+        gpu.submit_recorded(|enc| self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, None, step, Some(cap)))?;
+        Ok(())
     }
 
     /// Writes the renderer's per-ray inputs into `aux`: with a learned background each
