@@ -173,7 +173,8 @@ pub struct SamplerConfig {
     /// Samples kept per ray (the nearest).
     pub max_samples_per_ray: u32,
     /// Rendering (evaluation, `render`, the viewer; not training) marches each ray in
-    /// segments, the first of this many samples, each next twice as long, the field
+    /// segments, the first of this many samples, each next twice as long (or the rest
+    /// of every ray at once after a segment that turned few rays opaque), the field
     /// shading one segment before the next is marched from where it stopped; a ray
     /// stops once its transmittance falls under the renderer's threshold, so the
     /// samples behind an opaque surface are never shaded. The image is the one pass's

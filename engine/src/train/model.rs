@@ -371,7 +371,7 @@ impl Model {
         normals: bool,
     ) -> Result<(), TrainError> {
         let visible = self.config.sampler.visibility.render.then(|| self.config.sampler.visibility.rule());
-        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible, None))?;
+        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible, None, None))?;
         self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
         Ok(())
     }
@@ -380,7 +380,9 @@ impl Model {
     /// submits). With a `visible` rule (and `bufs` made for it) the march writes
     /// `bufs.visibility`'s batch, the field's densities there decide which samples a
     /// ray can see, and only those go into `bufs.batch`. `step`: march at this step
-    /// instead of the configured one ([`Model::training_march_step`]).
+    /// instead of the configured one ([`Model::training_march_step`]); `max_per_ray`:
+    /// keep at most this many samples a ray instead of `sampler.max_samples_per_ray`
+    /// (the segments of [`Model::render_rays`]).
     pub(super) fn record_sample(
         &mut self,
         enc: &mut Encoder,
@@ -388,6 +390,7 @@ impl Model {
         jitter_seed: Option<u32>,
         visible: Option<Visibility>,
         step: Option<f32>,
+        max_per_ray: Option<u32>,
     ) -> Result<(), TrainError> {
         let step = step.unwrap_or(self.sampler.step_size());
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
@@ -397,13 +400,13 @@ impl Model {
         };
         match (&bufs.visibility, visible) {
             (Some(v), Some(rule)) => {
-                self.sampler.record_sample_with_step(enc, march, &bufs.rays, &v.marched, jitter_seed, step, None)?;
+                self.sampler.record_sample_with_step(enc, march, &bufs.rays, &v.marched, jitter_seed, step, max_per_ray)?;
                 // The marched samples' densities in `field_out`: the pass reads them
                 // before the forward of the kept samples overwrites the buffer.
                 self.field.record_sample_density(enc, &v.marched, &bufs.field_out)?;
                 v.pass.record(enc, &v.marched, &bufs.field_out, &bufs.batch, rule)?;
             }
-            _ => self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, jitter_seed, step, None)?,
+            _ => self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, jitter_seed, step, max_per_ray)?,
         }
         Ok(())
     }
@@ -423,9 +426,9 @@ impl Model {
             for chunk in rays.chunks(RENDER_CHUNK as usize) {
                 let mut padded = chunk.to_vec();
                 padded.resize(RENDER_CHUNK as usize, GpuRay::default());
-                self.write_ray_inputs(gpu, &padded, &[], &bufs.render_out.aux);
+                let learned = self.write_ray_inputs(gpu, &padded, &[], &bufs.render_out.aux);
                 if self.renders_in_segments() {
-                    let (rendered, n) = self.render_segments(gpu, &bufs, &padded, normals)?;
+                    let (rendered, n) = self.render_segments(gpu, &bufs, &padded, learned, normals)?;
                     out.extend_from_slice(&rendered[..chunk.len()]);
                     samples += n;
                     continue;
@@ -451,24 +454,30 @@ impl Model {
         sampler.render_segment > 0 && !sampler.visibility.render
     }
 
-    /// One chunk of rays (their renderer inputs already in `bufs`) rendered in
+    /// One chunk of rays (their renderer inputs already in `bufs`; `learned`: the
+    /// learned background's colours behind them, where there is one) rendered in
     /// segments ([`super::render_segments`]): the outputs and the samples shaded.
-    fn render_segments(&mut self, gpu: &Gpu, bufs: &BatchBuffers, rays: &[GpuRay], normals: bool) -> Result<(Vec<RayOutput>, u64), TrainError> {
+    fn render_segments(
+        &mut self,
+        gpu: &Gpu,
+        bufs: &BatchBuffers,
+        rays: &[GpuRay],
+        learned: Option<Vec<[f32; 3]>>,
+        normals: bool,
+    ) -> Result<(Vec<RayOutput>, u64), TrainError> {
         use super::render_segments::{FEW_OPAQUE, SegmentedRays};
         let sampler = &self.config.sampler;
         let max = sampler.max_samples_per_ray.min(bufs.batch.capacity / bufs.batch.n_rays).max(1);
         let mut cap = sampler.render_segment.min(max);
-        let step = self.sampler.step_size();
         // The background each ray is composited over (the renderer's, launch seed 0).
-        let background = match &self.background {
-            Some(bg) => bg.colors(&bg.ray_dirs(rays)),
-            None => (0..rays.len() as u32).map(|r| crate::render::background_of(&self.renderer.config().background, 0, r).unwrap_or([0.0; 3])).collect(),
-        };
+        let background = learned.unwrap_or_else(|| {
+            (0..rays.len() as u32).map(|r| crate::render::background_of(&self.renderer.config().background, 0, r).unwrap_or([0.0; 3])).collect()
+        });
         let mut segments = SegmentedRays::new(rays, background, self.renderer.config().transmittance_threshold);
         let mut samples = 0u64;
         while segments.any_active() && cap > 0 {
             bufs.rays.write(gpu, segments.rays());
-            self.march_capped(gpu, bufs, step, cap)?;
+            gpu.submit_recorded(|enc| self.record_sample(enc, bufs, None, None, None, Some(cap)))?;
             self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
             let mut enc = gpu.encoder();
             self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;
@@ -487,34 +496,24 @@ impl Model {
         Ok((segments.finish(), samples))
     }
 
-    /// Marches `bufs.rays` into `bufs.batch`, at most `cap` samples a ray, no jitter.
-    fn march_capped(&mut self, gpu: &Gpu, bufs: &BatchBuffers, step: f32, cap: u32) -> Result<(), TrainError> {
-        let march = match self.config.sampler.mode {
-            SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
-            SamplerMode::Uniform => March::Uniform,
-        };
-        gpu.submit_recorded(|enc| self.sampler.record_sample_with_step(enc, march, &bufs.rays, &bufs.batch, None, step, Some(cap)))?;
-        Ok(())
-    }
-
     /// Writes the renderer's per-ray inputs into `aux`: with a learned background each
     /// ray's background colour (what the renderer composites behind it), and the
     /// stereo free-space prior's end of the first `free_end.len()` rays; nothing when
-    /// there is neither.
-    pub(super) fn write_ray_inputs(&self, gpu: &Gpu, rays: &[GpuRay], free_end: &[f32], aux: &GpuBuffer<crate::layout::RayAux>) {
+    /// there is neither. Returns the learned background's colours it wrote, if any.
+    pub(super) fn write_ray_inputs(&self, gpu: &Gpu, rays: &[GpuRay], free_end: &[f32], aux: &GpuBuffer<crate::layout::RayAux>) -> Option<Vec<[f32; 3]>> {
         if self.background.is_none() && free_end.is_empty() {
-            return;
+            return None;
         }
         let mut rows = vec![crate::layout::RayAux::default(); rays.len()];
-        if let Some(bg) = &self.background {
-            for (row, background) in rows.iter_mut().zip(bg.colors(&bg.ray_dirs(rays))) {
-                row.background = background;
-            }
+        let learned = self.background.as_ref().map(|bg| bg.colors(&bg.ray_dirs(rays)));
+        for (row, &background) in rows.iter_mut().zip(learned.iter().flatten()) {
+            row.background = background;
         }
         for (row, &end) in rows.iter_mut().zip(free_end) {
             row.free_end = end;
         }
         aux.write(gpu, &rows);
+        learned
     }
 
     /// Post-activation densities of the field at `points` (field space: world, or NDC
