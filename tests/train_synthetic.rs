@@ -450,6 +450,44 @@ fn segmented_rendering_matches_one_pass_on_fewer_samples() {
     }
 }
 
+/// The finer grid of renders (`sampler.render_resolution`): on a briefly trained
+/// `creases` (training grid 32^3) a test view rendered through a 128^3 grid built from
+/// the field marches fewer samples for nearly the same image (it drops only space whose
+/// probed density is under the training grid's threshold), leaves the training grid as
+/// it was, and is dropped by the next training step (the field it was built from changed).
+#[test]
+fn render_grid_marches_fewer_samples_for_nearly_the_same_image() {
+    let gpu = test_gpu(false);
+    let mut config = tiny_config("creases", 64);
+    config.set("sampler.resolution=32").unwrap();
+    let scene = load(&config);
+    let view = scene.split.test[0];
+    let mut trainer = Trainer::new(gpu.clone(), scene, config).unwrap();
+    for _ in 0..64 {
+        trainer.step().unwrap();
+    }
+    let training_grid = trainer.model.occupied_fraction();
+    let coarse = trainer.model.render_view(&gpu, &trainer.scene, view).unwrap();
+    assert_eq!(trainer.model.render_grid_occupied_fraction(), None, "no render grid without the option");
+    trainer.model.config.sampler.render_resolution = 128;
+    let fine = trainer.model.render_view(&gpu, &trainer.scene, view).unwrap();
+    let render_grid = trainer.model.render_grid_occupied_fraction().expect("built by the render");
+    let mse = coarse.rgb.iter().zip(&fine.rgb).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>() / 3.0).sum::<f32>()
+        / coarse.rgb.len() as f32;
+    let psnr = -10.0 * mse.max(1e-12).log10();
+    let opacity_diff = coarse.opacity.iter().zip(&fine.opacity).map(|(a, b)| (a - b).abs()).sum::<f32>() / coarse.opacity.len() as f32;
+    eprintln!(
+        "training grid {training_grid:.3} occupied, render grid {render_grid:.3}; samples {} -> {}; renders agree to {psnr:.1} dB, opacity {opacity_diff:.4}",
+        coarse.samples, fine.samples
+    );
+    assert!(render_grid < training_grid, "the finer grid is emptier: {render_grid} vs {training_grid}");
+    assert!(fine.samples * 10 < coarse.samples * 9, "{} samples through the finer grid, {} through training's", fine.samples, coarse.samples);
+    assert!(psnr > 32.0 && opacity_diff < 0.02, "the renders differ: {psnr} dB, opacity {opacity_diff}");
+    assert_eq!(trainer.model.occupied_fraction(), training_grid, "the training grid is untouched");
+    trainer.step().unwrap();
+    assert_eq!(trainer.model.render_grid_occupied_fraction(), None, "a training step drops the render grid");
+}
+
 /// A 3-view patch run on `creases`: `lambda1 = lambda_color`, `lambda2 = lambda3 =
 /// lambda`. Returns the `(L_z, L_n)` of each of `iters` steps, all on one fixed batch
 /// when `fixed` (else the trainer's own random batches).

@@ -60,20 +60,22 @@ mod tests {
         assert_eq!(sparse_preset(SceneFormat::Nerfstudio, false).path, SPARSE_OBJECT.path);
         // The object preset is sparse-small.toml with its opacity penalty and its
         // [[with_views]] table before it, without sparse-small.toml's visibility pass
-        // (its table up to the blank line after it), its rendering in segments (the
-        // comment and key) and that key's reset inside out: not measured on captures
-        // without alpha.
-        let (mut in_visibility, mut in_segments) = (false, false);
+        // (its table up to the blank line after it), its rendering in segments and
+        // through a finer grid (each comment and key) and their resets inside out
+        // (comment and key): not measured on captures without alpha.
+        let (mut in_visibility, mut in_segments, mut in_render_grid_reset) = (false, false, false);
         let small = SPARSE_SMALL
             .text
             .lines()
             .skip_while(|l| !l.starts_with("[field]"))
             .filter(|l| {
                 in_visibility |= l.starts_with("[sampler.visibility]");
-                in_segments |= l.starts_with("# Renders march each ray in segments");
-                let keep = !in_visibility && !in_segments && !l.contains("sampler.render_segment=0");
+                in_segments |= l.starts_with("# Renders march ");
+                in_render_grid_reset |= l.trim_start().starts_with("# Renders through the training grid inside out");
+                let keep = !in_visibility && !in_segments && !l.contains("sampler.render_segment=0") && !in_render_grid_reset;
                 in_visibility &= !l.is_empty();
-                in_segments &= !l.starts_with("render_segment =");
+                in_segments &= !(l.starts_with("render_segment =") || l.starts_with("render_resolution ="));
+                in_render_grid_reset &= !l.contains("sampler.render_resolution=0");
                 keep
             })
             .collect::<Vec<_>>();
@@ -143,6 +145,12 @@ mod tests {
         assert_eq!(preset_for_views(SPARSE_SMALL, 3).sampler.render_segment, 16);
         assert_eq!(preset_for_views(SPARSE_DTU, 3).sampler.render_segment, 16);
         assert_eq!(preset_for_views(SPARSE_OBJECT, 3).sampler.render_segment, 0);
+        // Objects render through a 64^3 grid; the object preset (and rooms seen from
+        // within, below) through the training grid.
+        for views in [3, 24] {
+            assert_eq!(preset_for_views(SPARSE_SMALL, views).sampler.render_resolution, 64, "{views} views");
+        }
+        assert_eq!(preset_for_views(SPARSE_OBJECT, 3).sampler.render_resolution, 0);
         for views in [2, 3, 5, 8] {
             assert!(!preset_for_views(SPARSE_OBJECT, views).sampler.visibility.train, "{views} views");
         }
@@ -211,8 +219,9 @@ mod tests {
                 c.validate().unwrap();
                 let bg = c.render.learned_background;
                 if inside {
-                    // sparse-small.toml also renders in one pass again inside out.
-                    let n_set = if preset.path == SPARSE_SMALL.path { 19 } else { 18 };
+                    // sparse-small.toml also renders in one pass and through the training grid
+                    // again inside out.
+                    let n_set = if preset.path == SPARSE_SMALL.path { 20 } else { 18 };
                     assert_eq!(applied.len(), n_set, "{}", preset.path);
                     assert_eq!(c.sampler.render_segment, 0, "{}: one pass inside out", preset.path);
                     assert_eq!(c.sampler.warmup_decay, Some(0.7), "{}: the warm-up forgets faster inside out", preset.path);
@@ -220,6 +229,7 @@ mod tests {
                     assert_eq!((v.start_step, v.min_alpha_start_step), (256, 256), "{}: the visibility pass from step 256 inside out", preset.path);
                     if preset.path == SPARSE_SMALL.path {
                         assert_eq!((v.min_alpha, v.max_dropped_opacity), (0.01, 0.05), "the floor and its bound kept inside out");
+                        assert_eq!(c.sampler.render_resolution, 0, "rooms render through the training grid");
                     }
                     let dtu = preset_for_views(SPARSE_DTU, 3).priors;
                     let p = &c.priors;

@@ -24,6 +24,11 @@
 //! written back to the GPU), so space no training ray can reach is never marched: its
 //! density is whatever initialisation left there, fog or floaters in novel views.
 //!
+//! **The render grid.** [`OccupancyGrid::refined`] builds a finer grid for rendering
+//! (`sampler.render_resolution`) inside this one's occupied cells, from the densities
+//! its caller evaluates at a few jittered points per cell (the model builds it before
+//! its first render and drops it after each training step).
+//!
 //! Invariants: `host_bits` equals the GPU bitfield and is a subset of the seen mask; the BVH and the occupied list
 //! were built from `host_bits`; before the first update every cell is occupied (so an
 //! untrained grid samples like the uniform marcher restricted to the AABB).
@@ -345,6 +350,73 @@ impl OccupancyGrid {
         Ok(kept)
     }
 
+    /// One jittered point in each of the `count` cells of `list`, for
+    /// [`OccupancyGrid::refined`] (the cells outside the list keep their density).
+    fn record_query_list(&self, enc: &mut Encoder, list: &GpuBuffer<u32>, count: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
+        let gpu = enc.gpu();
+        let positions = GpuBuffer::zeros(gpu, "grid query points", count.max(1) as usize)?;
+        let cells = GpuBuffer::zeros(gpu, "grid query cells", count.max(1) as usize)?;
+        let params = enc.params(&QueryParams { geom: self.geom, count, seed, all_cells: 0, n_uniform: 0, list_len: count, _pad: [0; 3] });
+        enc.dispatch_threads(&*gpu.kernel(&QUERY)?, &[&params, &list.buffer, &positions.buffer, &cells.buffer], count);
+        Ok(OccupancyQuery { positions, cells, count, decay: 1.0 })
+    }
+
+    /// A finer grid for rendering ([`SamplerConfig::render_resolution`]): `resolution`
+    /// cells per axis (a multiple of this grid's), restricted to the cells inside this
+    /// grid's occupied ones (through [`OccupancyGrid::restrict_to_seen`], so it also keeps
+    /// this grid's seen mask, which its bits already obey), then [`RENDER_GRID_POINTS`]
+    /// updates that query each of those cells at a jittered point (`seed + k`) with no
+    /// decay, so each keeps the largest density found and is occupied as a training
+    /// update would mark it, at [`RENDER_GRID_THRESHOLD_SCALE`] times its threshold on
+    /// one step's opacity (the cells outside stay at zero, which can only lower the
+    /// mean the threshold is capped by). `density(enc, points,
+    /// count, out)` records the field's densities at `points[..count]` into `out` (the
+    /// grid never knows the field). Waits for the GPU once per update.
+    ///
+    /// [`RENDER_GRID_POINTS`]: super::RENDER_GRID_POINTS
+    /// [`RENDER_GRID_THRESHOLD_SCALE`]: super::RENDER_GRID_THRESHOLD_SCALE
+    pub fn refined<E: From<SamplerError>>(
+        &self,
+        gpu: &Gpu,
+        resolution: u32,
+        seed: u32,
+        mut density: impl FnMut(&mut Encoder, &GpuBuffer<[f32; 4]>, u32, &GpuBuffer<f32>) -> Result<(), E>,
+    ) -> Result<OccupancyGrid, E> {
+        let coarse = self.geom.res;
+        if resolution < coarse || !resolution.is_multiple_of(coarse) {
+            return Err(SamplerError::Config(format!("a render grid of {resolution} cells per axis does not refine {coarse}")).into());
+        }
+        // Every query of the finer grid takes all cells (step 0 < warm-up).
+        let threshold = self.config.threshold * super::RENDER_GRID_THRESHOLD_SCALE;
+        let config = SamplerConfig { resolution, warmup_steps: 1, threshold, ..self.config.clone() };
+        let mut fine = OccupancyGrid::new(gpu, &config, self.layout.aabb)?;
+        let [lo, hi] = self.layout.aabb;
+        let coarse_cell = (hi - lo) / coarse as f32;
+        let parent_occupied = |cmin: Vec3, cmax: Vec3| {
+            let ijk = (((cmin + cmax) * 0.5 - lo) / coarse_cell).floor();
+            let [x, y, z] = ijk.to_array().map(|v| (v.max(0.0) as u32).min(coarse - 1));
+            self.is_occupied(x, y, z)
+        };
+        fine.restrict_to_seen(gpu, parent_occupied)?;
+        // Every update probes the same cells: the occupied list before the first one
+        // (each update rebuilds the list from its own bits).
+        let list = occupied_list(&fine.host_bits, fine.geom.n_cells as usize);
+        if list.is_empty() {
+            return Ok(fine);
+        }
+        let candidates = GpuBuffer::from_slice(gpu, "render grid cells", &list).map_err(SamplerError::from)?;
+        let n = list.len() as u32;
+        let densities = GpuBuffer::<f32>::zeros(gpu, "render grid densities", n.max(1) as usize).map_err(SamplerError::from)?;
+        for k in 0..super::RENDER_GRID_POINTS {
+            let mut enc = gpu.encoder();
+            let query = fine.record_query_list(&mut enc, &candidates, n, seed.wrapping_add(k))?;
+            density(&mut enc, &query.positions, query.count, &densities)?;
+            fine.record_update(&mut enc, &query.cells, &densities, query.count, 1.0)?;
+            fine.finish_update(enc)?;
+        }
+        Ok(fine)
+    }
+
     /// How many cells the seen mask keeps ([`OccupancyGrid::restrict_to_seen`]); `None`
     /// when occupancy is not restricted.
     pub fn seen_cells(&self) -> Option<u32> {
@@ -380,18 +452,7 @@ impl OccupancyGrid {
 
     /// Rebuilds the occupied list and the brick BVH from `bits` and uploads them.
     fn rebuild(&mut self, gpu: &Gpu, bits: Vec<u32>) -> Result<(), SamplerError> {
-        let n_cells = self.geom.n_cells as usize;
-        let mut list = Vec::new();
-        for (w, &word) in bits.iter().enumerate() {
-            let mut word = word;
-            while word != 0 {
-                let c = w * 32 + word.trailing_zeros() as usize;
-                word &= word - 1;
-                if c < n_cells {
-                    list.push(c as u32);
-                }
-            }
-        }
+        let list = occupied_list(&bits, self.geom.n_cells as usize);
         let bvh = BrickBvh::build(self.layout.occupied_bricks(&bits))?;
         self.occupied = GpuBuffer::from_slice(gpu, "occupied cells", &list)?;
         self.n_occupied = list.len() as u32;
@@ -611,6 +672,62 @@ pub(crate) mod tests {
         let upd = grid.restore_density(&gpu, &saved).unwrap();
         assert_eq!(upd.occupied_cells, kept);
     }
+
+    #[test]
+    fn render_grid_refines_only_the_training_grids_occupied_cells() {
+        let gpu = crate::gpu::test_gpu(false);
+        let cfg = SamplerConfig { resolution: 8, brick_size: 4, ..Default::default() };
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        let mut coarse = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
+        // The training grid: occupied where its z < 2 (the finer grid's z < 4).
+        let coarse_density: Vec<f32> = (0..512u32).map(|c| if c / 64 < 2 { 100.0 } else { 0.0 }).collect();
+        coarse.restore_density(&gpu, &coarse_density).unwrap();
+        assert_eq!(coarse.occupied_cells(), 2 * 64);
+        // The field, per cell of the finer grid (each query's point i lies in cell i):
+        // dense where x < 8, so a dense cell outside the training grid's (x < 8, z >= 4)
+        // and an empty one inside it (x >= 8, z < 4) both occur.
+        let n = 16u32.pow(3);
+        let fine_density: Vec<f32> = (0..n).map(|c| if c % 16 < 8 { 10.0 } else { 0.0 }).collect();
+        let field = GpuBuffer::from_slice(&gpu, "field", &fine_density).unwrap();
+        let mut calls = 0;
+        let fine = coarse
+            .refined(&gpu, 16, 5, |enc, points, count, out| {
+                calls += 1;
+                // The cells inside the training grid's occupied ones, in index order:
+                // z < 4, the first 1024 cells, so query i is in cell i.
+                assert_eq!(count, 16 * 16 * 4, "only the cells inside occupied ones are queried");
+                assert!(points.len() >= count as usize && out.len() >= count as usize);
+                enc.copy(&field.buffer, &out.buffer, count as u64 * 4);
+                Ok::<(), SamplerError>(())
+            })
+            .unwrap();
+        assert_eq!(calls, crate::sampler::RENDER_GRID_POINTS);
+        assert_eq!(fine.resolution(), 16);
+        for c in 0..n {
+            let (x, y, z) = (c % 16, (c / 16) % 16, c / 256);
+            assert_eq!(fine.is_occupied(x, y, z), x < 8 && z < 4, "cell ({x}, {y}, {z})");
+        }
+        assert_eq!(fine.occupancy_bits(), fine.bits.read(&gpu).unwrap().as_slice(), "the GPU bitfield agrees");
+        assert_eq!(coarse.occupied_cells(), 2 * 64, "the training grid is untouched");
+        let not_a_multiple = coarse.refined(&gpu, 12, 5, |_, _, _, _| Ok::<(), SamplerError>(()));
+        assert!(matches!(not_a_multiple, Err(SamplerError::Config(m)) if m.contains("does not refine 8")));
+    }
+}
+
+/// The cells whose bit is set in `bits`, in index order (the first `n_cells` bits).
+fn occupied_list(bits: &[u32], n_cells: usize) -> Vec<u32> {
+    let mut list = Vec::new();
+    for (w, &word) in bits.iter().enumerate() {
+        let mut word = word;
+        while word != 0 {
+            let c = w * 32 + word.trailing_zeros() as usize;
+            word &= word - 1;
+            if c < n_cells {
+                list.push(c as u32);
+            }
+        }
+    }
+    list
 }
 
 /// The `#[repr(C)]` mirrors of this file against their WGSL structs (naga's layout).

@@ -580,6 +580,7 @@ impl Trainer {
         let guards = self.pipeline.loss_guards(&plan);
         self.grad_norm.record_guarded(&gpu, &mut enc, &ParamGroup::grads_of(&groups), &guards, &self.model.config.optim.clip)?;
         self.adam.record_step(&gpu, &mut enc, &groups, lr, Some(&self.grad_norm))?;
+        self.model.forget_render_grid();
         // The step's one wait, in Trainer::complete: losses, counts and gradient stats.
         let mut reads = ReadBatch::new();
         let losses = self.pipeline.add_loss_reads(&mut reads, &plan, cut);

@@ -5,8 +5,10 @@
 //!
 //! Invariants: the model never changes parameters (the [`Trainer`](super::Trainer)
 //! does); the occupancy grid is refreshed only through [`Model::update_occupancy`], from the
-//! field's own densities, or restored from a checkpoint; rendering for images uses no
-//! jitter (deterministic output).
+//! field's own densities, or restored from a checkpoint; the finer grid renders may
+//! march (`sampler.render_resolution`) is built from the field as it is at the render
+//! and dropped whenever the field or the training grid changes; rendering for images
+//! uses no jitter (deterministic output).
 
 use crate::data::{Camera, Scene};
 use crate::field::{Field, Footprint, GridField, MlpField};
@@ -126,6 +128,18 @@ pub struct Model {
     pub background: Option<LearnedBackground>,
     occupancy_densities: Option<GpuBuffer<f32>>,
     render_buffers: Option<BatchBuffers>,
+    /// The finer grid renders march (`sampler.render_resolution`), built from the field
+    /// at the first render after the field or the training grid last changed
+    /// ([`Model::forget_render_grid`]); `None` until then, or without the option.
+    render_grid: Option<OccupancyGrid>,
+}
+
+/// Which occupancy grid a march goes through: training's, or the finer one of renders
+/// (`sampler.render_resolution`; the training grid where there is none).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum MarchGrid {
+    Training,
+    Render,
 }
 
 /// The pixel footprint of the scene's training cameras, for the MLP's integrated
@@ -259,7 +273,17 @@ impl Model {
         render_config.background = background_of(&config, scene);
         let background = (render_config.background == Background::Learned).then(|| LearnedBackground::new(config.render.learned_background, scene.aabb));
         let renderer = Renderer::new(gpu, render_config)?;
-        Ok(Model { config, field, occupancy, sampler, renderer, background, occupancy_densities: None, render_buffers: None })
+        Ok(Model {
+            config,
+            field,
+            occupancy,
+            sampler,
+            renderer,
+            background,
+            occupancy_densities: None,
+            render_buffers: None,
+            render_grid: None,
+        })
     }
 
     /// The model of a checkpoint, ready to render, without optimizer state: its config
@@ -303,6 +327,7 @@ impl Model {
             let start = a.start_levels.min(levels) as f64;
             let active = (start + frac * (levels as f64 - start)).floor() as u32;
             self.field.set_active_levels(active.max(1));
+            self.forget_render_grid();
         }
     }
 
@@ -348,6 +373,7 @@ impl Model {
         if self.config.sampler.mode == SamplerMode::Uniform || !(force || self.occupancy.should_update(step as u32)) {
             return Ok(None);
         }
+        self.forget_render_grid();
         let query_step = if force { 0 } else { step as u32 };
         // The query, the densities and the update in one submission, one wait.
         let mut enc = gpu.encoder();
@@ -371,7 +397,7 @@ impl Model {
         normals: bool,
     ) -> Result<(), TrainError> {
         let visible = self.config.sampler.visibility.render.then(|| self.config.sampler.visibility.rule());
-        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, jitter_seed, visible, None, None))?;
+        gpu.submit_recorded(|enc| self.record_sample(enc, bufs, MarchGrid::Render, jitter_seed, visible, None, None))?;
         self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
         Ok(())
     }
@@ -382,11 +408,13 @@ impl Model {
     /// ray can see, and only those go into `bufs.batch`. `step`: march at this step
     /// instead of the configured one ([`Model::training_march_step`]); `max_per_ray`:
     /// keep at most this many samples a ray instead of `sampler.max_samples_per_ray`
-    /// (the segments of [`Model::render_rays`]).
+    /// (the segments of [`Model::render_rays`]); `grid`: the grid marched.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn record_sample(
         &mut self,
         enc: &mut Encoder,
         bufs: &BatchBuffers,
+        grid: MarchGrid,
         jitter_seed: Option<u32>,
         visible: Option<Visibility>,
         step: Option<f32>,
@@ -395,7 +423,10 @@ impl Model {
         let step = step.unwrap_or(self.sampler.step_size());
         // Spelled out (not a `&self` helper) so the grid and the sampler borrow apart.
         let march = match self.config.sampler.mode {
-            SamplerMode::Occupancy => March::Occupancy(&self.occupancy),
+            SamplerMode::Occupancy => March::Occupancy(match (grid, &self.render_grid) {
+                (MarchGrid::Render, Some(fine)) => fine,
+                _ => &self.occupancy,
+            }),
             SamplerMode::Uniform => March::Uniform,
         };
         match (&bufs.visibility, visible) {
@@ -419,6 +450,7 @@ impl Model {
         if self.render_buffers.is_none() {
             self.render_buffers = Some(BatchBuffers::new(gpu, RENDER_CHUNK, capacity, self.config.sampler.visibility.render)?);
         }
+        self.ensure_render_grid(gpu)?;
         let bufs = self.render_buffers.take().unwrap();
         let result = (|| {
             let mut out = Vec::with_capacity(rays.len());
@@ -445,6 +477,42 @@ impl Model {
         })();
         self.render_buffers = Some(bufs);
         result
+    }
+
+    /// Builds the finer grid of renders (`sampler.render_resolution`, see
+    /// [`OccupancyGrid::refined`]) from the field as it is now, unless built at that
+    /// resolution since the field or the training grid last changed; without the option
+    /// (or a grid) drops any.
+    fn ensure_render_grid(&mut self, gpu: &Gpu) -> Result<(), TrainError> {
+        let sampler = &self.config.sampler;
+        let resolution = sampler.render_resolution;
+        if resolution == 0 || sampler.mode != SamplerMode::Occupancy {
+            self.render_grid = None;
+            return Ok(());
+        }
+        if self.render_grid.as_ref().is_some_and(|g| g.resolution() == resolution) {
+            return Ok(());
+        }
+        let seed = (self.config.train.seed as u32).wrapping_mul(0x85EB_CA6B) ^ 0x5245_4E44;
+        let field = &self.field;
+        let fine = self.occupancy.refined(gpu, resolution, seed, |enc, points, count, out| {
+            field.record_density(enc, points, count, out).map_err(TrainError::from)
+        })?;
+        self.render_grid = Some(fine);
+        Ok(())
+    }
+
+    /// Drops the finer grid of renders, to be rebuilt at the next render: the
+    /// [`super::Trainer`] calls it after each step, [`Model::update_occupancy`] and
+    /// [`Model::set_levels_for_step`] themselves.
+    pub(super) fn forget_render_grid(&mut self) {
+        self.render_grid = None;
+    }
+
+    /// Fraction of the render grid's cells marked occupied (`None` until a render has
+    /// built it, or without `sampler.render_resolution`).
+    pub fn render_grid_occupied_fraction(&self) -> Option<f32> {
+        self.render_grid.as_ref().map(|g| g.occupied_cells() as f32 / g.resolution().pow(3) as f32)
     }
 
     /// Whether [`Model::render_rays`] renders in segments (`sampler.render_segment`;
@@ -477,7 +545,7 @@ impl Model {
         let mut samples = 0u64;
         while segments.any_active() && cap > 0 {
             bufs.rays.write(gpu, segments.rays());
-            gpu.submit_recorded(|enc| self.record_sample(enc, bufs, None, None, None, Some(cap)))?;
+            gpu.submit_recorded(|enc| self.record_sample(enc, bufs, MarchGrid::Render, None, None, None, Some(cap)))?;
             self.field.forward(gpu, &bufs.batch, &bufs.field_out, normals)?;
             let mut enc = gpu.encoder();
             self.renderer.forward(&mut enc, &bufs.batch, &bufs.field_out, &bufs.render_out, 0)?;

@@ -341,7 +341,7 @@ impl Pipeline {
         profile: &mut Option<StageTimes>,
     ) -> Result<(), TrainError> {
         self.upload(enc.gpu(), scene, model, batch, plan);
-        model.record_sample(enc, &self.bufs, Some(plan.jitter), plan.visibility, plan.march_step, None)?;
+        model.record_sample(enc, &self.bufs, super::model::MarchGrid::Training, Some(plan.jitter), plan.visibility, plan.march_step, None)?;
         end_recorded_stage(profile, enc, Stage::Sampler)?;
         model.field.record_forward_for_backward(enc, &self.bufs.batch, &self.bufs.field_out, plan.normals())?;
         end_recorded_stage(profile, enc, Stage::FieldForward)?;
