@@ -197,7 +197,6 @@ impl OccupancyGrid {
 
     /// [`OccupancyGrid::query_points`] recorded into `enc` (the caller submits).
     pub fn record_query_points(&self, enc: &mut Encoder, step: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
-        let gpu = enc.gpu();
         let n_cells = self.geom.n_cells;
         let (all_cells, n_uniform, count) = if step < self.config.warmup_steps {
             (1, 0, n_cells)
@@ -205,20 +204,22 @@ impl OccupancyGrid {
             let quarter = n_cells / 4;
             (0, quarter, quarter + self.n_occupied.min(quarter))
         };
+        let params = QueryParams { geom: self.geom, count, seed, all_cells, n_uniform, list_len: self.n_occupied, _pad: [0; 3] };
+        self.record_query(enc, &self.occupied, params, self.config.decay_at(step))
+    }
+
+    /// The query kernel with `params` over the cell list `list` (the occupied list, or
+    /// [`OccupancyGrid::refined`]'s candidates), into fresh buffers of `params.count`
+    /// points, for an update at `decay`.
+    fn record_query(&self, enc: &mut Encoder, list: &GpuBuffer<u32>, params: QueryParams, decay: f32) -> Result<OccupancyQuery, SamplerError> {
+        let gpu = enc.gpu();
+        let count = params.count;
         let positions = GpuBuffer::zeros(gpu, "grid query points", count as usize)?;
         let cells = GpuBuffer::zeros(gpu, "grid query cells", count as usize)?;
         let kernel = gpu.kernel(&QUERY)?;
-        let params = enc.params(&QueryParams {
-            geom: self.geom,
-            count,
-            seed,
-            all_cells,
-            n_uniform,
-            list_len: self.n_occupied,
-            _pad: [0; 3],
-        });
-        enc.dispatch_threads(&kernel, &[&params, &self.occupied.buffer, &positions.buffer, &cells.buffer], count);
-        Ok(OccupancyQuery { positions, cells, count, decay: self.config.decay_at(step) })
+        let params = enc.params(&params);
+        enc.dispatch_threads(&kernel, &[&params, &list.buffer, &positions.buffer, &cells.buffer], count);
+        Ok(OccupancyQuery { positions, cells, count, decay })
     }
 
     /// Folds the densities evaluated at a query's points into the grid, rebuilds the
@@ -350,17 +351,6 @@ impl OccupancyGrid {
         Ok(kept)
     }
 
-    /// One jittered point in each of the `count` cells of `list`, for
-    /// [`OccupancyGrid::refined`] (the cells outside the list keep their density).
-    fn record_query_list(&self, enc: &mut Encoder, list: &GpuBuffer<u32>, count: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
-        let gpu = enc.gpu();
-        let positions = GpuBuffer::zeros(gpu, "grid query points", count.max(1) as usize)?;
-        let cells = GpuBuffer::zeros(gpu, "grid query cells", count.max(1) as usize)?;
-        let params = enc.params(&QueryParams { geom: self.geom, count, seed, all_cells: 0, n_uniform: 0, list_len: count, _pad: [0; 3] });
-        enc.dispatch_threads(&*gpu.kernel(&QUERY)?, &[&params, &list.buffer, &positions.buffer, &cells.buffer], count);
-        Ok(OccupancyQuery { positions, cells, count, decay: 1.0 })
-    }
-
     /// A finer grid for rendering ([`SamplerConfig::render_resolution`]): `resolution`
     /// cells per axis (a multiple of this grid's), restricted to the cells inside this
     /// grid's occupied ones (through [`OccupancyGrid::restrict_to_seen`], so it also keeps
@@ -386,9 +376,9 @@ impl OccupancyGrid {
         if resolution < coarse || !resolution.is_multiple_of(coarse) {
             return Err(SamplerError::Config(format!("a render grid of {resolution} cells per axis does not refine {coarse}")).into());
         }
-        // Every query of the finer grid takes all cells (step 0 < warm-up).
         let threshold = self.config.threshold * super::RENDER_GRID_THRESHOLD_SCALE;
-        let config = SamplerConfig { resolution, warmup_steps: 1, threshold, ..self.config.clone() };
+        // The finer grid renders through itself: no render grid of its own.
+        let config = SamplerConfig { resolution, render_resolution: 0, threshold, ..self.config.clone() };
         let mut fine = OccupancyGrid::new(gpu, &config, self.layout.aabb)?;
         let [lo, hi] = self.layout.aabb;
         let coarse_cell = (hi - lo) / coarse as f32;
@@ -406,10 +396,12 @@ impl OccupancyGrid {
         }
         let candidates = GpuBuffer::from_slice(gpu, "render grid cells", &list).map_err(SamplerError::from)?;
         let n = list.len() as u32;
-        let densities = GpuBuffer::<f32>::zeros(gpu, "render grid densities", n.max(1) as usize).map_err(SamplerError::from)?;
+        let densities = GpuBuffer::<f32>::zeros(gpu, "render grid densities", n as usize).map_err(SamplerError::from)?;
         for k in 0..super::RENDER_GRID_POINTS {
             let mut enc = gpu.encoder();
-            let query = fine.record_query_list(&mut enc, &candidates, n, seed.wrapping_add(k))?;
+            // One jittered point in each candidate (list mode: point i in cell list[i]).
+            let params = QueryParams { geom: fine.geom, count: n, seed: seed.wrapping_add(k), all_cells: 0, n_uniform: 0, list_len: n, _pad: [0; 3] };
+            let query = fine.record_query(&mut enc, &candidates, params, 1.0)?;
             density(&mut enc, &query.positions, query.count, &densities)?;
             fine.record_update(&mut enc, &query.cells, &densities, query.count, 1.0)?;
             fine.finish_update(enc)?;
