@@ -63,18 +63,18 @@ mod tests {
         // (its table up to the blank line after it), its rendering in segments and
         // through a finer grid (each comment and key) and their resets inside out
         // (comment and key): not measured on captures without alpha.
-        let (mut in_visibility, mut in_segments, mut in_render_grid_reset) = (false, false, false);
+        let (mut in_visibility, mut in_render_keys, mut in_render_grid_reset) = (false, false, false);
         let small = SPARSE_SMALL
             .text
             .lines()
             .skip_while(|l| !l.starts_with("[field]"))
             .filter(|l| {
                 in_visibility |= l.starts_with("[sampler.visibility]");
-                in_segments |= l.starts_with("# Renders march ");
+                in_render_keys |= l.starts_with("# Renders march ");
                 in_render_grid_reset |= l.trim_start().starts_with("# Renders through the training grid inside out");
-                let keep = !in_visibility && !in_segments && !l.contains("sampler.render_segment=0") && !in_render_grid_reset;
+                let keep = !in_visibility && !in_render_keys && !l.contains("sampler.render_segment=0") && !in_render_grid_reset;
                 in_visibility &= !l.is_empty();
-                in_segments &= !(l.starts_with("render_segment =") || l.starts_with("render_resolution ="));
+                in_render_keys &= !(l.starts_with("render_segment =") || l.starts_with("render_resolution ="));
                 in_render_grid_reset &= !l.contains("sampler.render_resolution=0");
                 keep
             })

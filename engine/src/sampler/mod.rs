@@ -336,12 +336,14 @@ impl SamplerConfig {
         if self.brick_size == 0 {
             return fail("brick_size must be at least 1".into());
         }
-        if self.resolution.div_ceil(self.brick_size) > MAX_BRICKS_PER_AXIS {
-            return fail(format!(
-                "resolution {} / brick_size {} gives more than {MAX_BRICKS_PER_AXIS} bricks per axis",
-                self.resolution, self.brick_size
-            ));
-        }
+        // The training grid and the finer grid of renders are both bricked.
+        let bricks_fit = |name: &str, r: u32| {
+            if r.div_ceil(self.brick_size) > MAX_BRICKS_PER_AXIS {
+                return fail(format!("{name} {r} / brick_size {} gives more than {MAX_BRICKS_PER_AXIS} bricks per axis", self.brick_size));
+            }
+            Ok(())
+        };
+        bricks_fit("resolution", self.resolution)?;
         if !(0.0..=1.0).contains(&self.decay) {
             return fail(format!("decay {} not in [0, 1]", self.decay));
         }
@@ -371,12 +373,7 @@ impl SamplerConfig {
                 self.resolution
             ));
         }
-        if r.div_ceil(self.brick_size) > MAX_BRICKS_PER_AXIS {
-            return fail(format!(
-                "render_resolution {r} / brick_size {} gives more than {MAX_BRICKS_PER_AXIS} bricks per axis",
-                self.brick_size
-            ));
-        }
+        bricks_fit("render_resolution", r)?;
         if self.max_samples_per_ray == 0 {
             return fail("max_samples_per_ray must be at least 1".into());
         }
