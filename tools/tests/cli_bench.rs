@@ -203,6 +203,16 @@ fn eval_writes_metrics_and_error_maps() {
         assert!(m["metrics"][k].is_number(), "metrics.{k} missing: {}", m["metrics"]);
     }
     assert!(m["views"][0]["lpips_vgg"].is_null() && m["views"][0]["lpips_alex"].is_null(), "no weights, no LPIPS");
+    // PSNR split by how many of the 3 training views see each pixel's surface: per view
+    // the classes' shares add up to the object's pixels (never more than the image), and
+    // the table prints their means.
+    assert!(t.contains("PSNR by how many training views see the surface"), "{t}");
+    for v in m["views"].as_array().unwrap() {
+        let c = &v["covisibility"];
+        let share: f64 = ["unseen", "seen_once", "seen_twice_or_more"].iter().filter_map(|k| c[*k]["fraction"].as_f64()).sum();
+        assert!(share > 0.05 && share < 1.0, "the object's pixels only: {c}");
+    }
+    assert!(m["metrics"]["covisibility.seen_twice_or_more.psnr"].is_number(), "{}", m["metrics"]);
     let first = m["views"][0]["name"].as_str().unwrap();
     for f in ["rgb.png", "depth.png", "normal.png", "depth_error.png", "normal_error.png", "edge_overlay.png"] {
         assert!(out.join(format!("{first}_{f}")).is_file(), "{first}_{f} missing");

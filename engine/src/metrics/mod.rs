@@ -20,7 +20,9 @@
 //! * [`mesh`]: an exported mesh against the scene's ground-truth mesh (Chamfer
 //!   distance, F-score, precision, recall) over the surface the cameras see;
 //! * [`protocol`]: the evaluation protocol, which pixels of a view the image metrics
-//!   count by the scene's format (DTU masked, or full image), used by every evaluation.
+//!   count by the scene's format (DTU masked, or full image), used by every evaluation;
+//! * [`covisibility`]: PSNR split by how many training views see each pixel's
+//!   ground-truth surface (none, one, two or more).
 //!
 //! Conventions (those of [`crate::data`]): images row-major, `width * height` pixels,
 //! RGB interleaved in `[0, 1]`; depth is the ray distance, `> 0` and finite where the
@@ -35,6 +37,7 @@
 //! parameters they were computed with.
 
 pub mod boundary;
+pub mod covisibility;
 pub mod distance;
 pub mod geometry;
 pub mod image;
@@ -44,6 +47,7 @@ pub mod mesh;
 pub mod protocol;
 
 pub use boundary::{DbeParams, DepthBoundaryError, depth_boundary_error, depth_boundary_error_from_edges};
+pub use covisibility::{ClassScore, Covisibility, CovisibilityParams, DepthView, covisibility, views_seeing};
 pub use geometry::{
     DepthErrors, EdgeMapParams, GeometryInputs, GeometryMetrics, GeometryParams, NormalErrors, Regions, depth_errors,
     evaluate_geometry, gt_edge_map, normal_errors,

@@ -6,6 +6,10 @@
 //! training run ([`evaluate`]), `edgenerf render` and `edgenerf eval`, so the same
 //! checkpoint gets the same figures from each.
 //!
+//! Where the view and the training views have ground-truth depth (world-space scenes),
+//! PSNR is also split by how many training views see each pixel's surface
+//! ([`crate::metrics::covisibility`]).
+//!
 //! Invariants: image figures follow [`Protocol::of_view`]; the rendered depth compared
 //! with ground truth is [`RenderedView::terminated_depth`], the normals the
 //! renormalised rendered ones; depth is compared only in world-space scenes.
@@ -16,6 +20,7 @@ use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, Geo
 use crate::metrics::image::ImageMetrics;
 use crate::metrics::protocol::{Protocol, score_view};
 use crate::metrics::MetricsError;
+use crate::metrics::covisibility::{Covisibility, CovisibilityParams, DepthView, covisibility};
 
 use super::TrainError;
 use super::model::{Model, RenderedView};
@@ -65,6 +70,11 @@ pub struct ViewEvaluation {
     /// (expected ray distance given termination), the normals the renormalised
     /// rendered ones.
     pub geometry: Option<GeometryMetrics>,
+    /// PSNR over the pixels whose ground-truth surface no training view, one, or two or
+    /// more see (world-space scenes whose views all have ground-truth depth; absent
+    /// otherwise). Full-image pixels, whatever `protocol` is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub covisibility: Option<Covisibility>,
 }
 
 fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f32> {
@@ -97,6 +107,7 @@ pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> Result<ViewEv
         None
     };
     let samples_per_ray = r.samples as f32 / (r.width * r.height).max(1) as f32;
+    let covisibility = covisibility_of(scene, v, r.rgb.as_flattened())?;
     Ok(ViewEvaluation {
         view: v,
         psnr: image.psnr as f32,
@@ -105,7 +116,22 @@ pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> Result<ViewEv
         full_image: image.full_image,
         samples_per_ray,
         geometry,
+        covisibility,
     })
+}
+
+/// [`ViewEvaluation::covisibility`] of `rgb`, the render of view `v`: `None` in NDC,
+/// without training views, or where this view or a training view lacks ground-truth
+/// depth.
+fn covisibility_of(scene: &Scene, v: usize, rgb: &[f32]) -> Result<Option<Covisibility>, MetricsError> {
+    let depth_view = |i: usize| scene.views[i].depth.as_deref().map(|depth| DepthView { camera: &scene.views[i].camera, depth });
+    let train: Option<Vec<DepthView>> = scene.split.train.iter().filter(|&&i| i != v).map(|&i| depth_view(i)).collect();
+    match (depth_view(v), train) {
+        (Some(view), Some(train)) if scene.ndc.is_none() && !train.is_empty() => {
+            Ok(Some(covisibility(rgb, &scene.views[v].image.data, view, &train, &CovisibilityParams::default())?))
+        }
+        _ => Ok(None),
+    }
 }
 
 impl Evaluation {

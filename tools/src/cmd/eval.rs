@@ -36,7 +36,7 @@ use edgenerf::metrics::lpips::{Lpips, LpipsNet};
 use edgenerf::mesh::ply::read_ply;
 use edgenerf::metrics::mesh::{MeshMetricParams, MeshMetrics, mesh_metrics};
 use edgenerf::metrics::protocol::{Protocol, comparison_images};
-use edgenerf::metrics::{GeometryMetrics, ImageMetrics};
+use edgenerf::metrics::{Covisibility, GeometryMetrics, ImageMetrics};
 use edgenerf::train::export::{MeshOptions, extract_mesh};
 use edgenerf::train::{RenderedView, evaluate_view};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -153,6 +153,10 @@ pub struct ViewRecord {
     /// Unmasked PSNR / SSIM where the protocol is masked.
     pub full_image: Option<ImageMetrics>,
     pub geometry: Option<GeometryMetrics>,
+    /// PSNR over the pixels whose ground-truth surface no training view, one, or two
+    /// or more see (scenes with ground-truth depth in world space).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub covisibility: Option<Covisibility>,
     /// Field samples per pixel ray of its render.
     pub samples_per_ray: f64,
 }
@@ -213,6 +217,9 @@ pub fn flatten_view_metrics(v: &ViewRecord) -> BTreeMap<String, f64> {
     if let Some(g) = &v.geometry {
         walk("", &serde_json::to_value(g).expect("metrics serialize"), &mut out);
     }
+    if let Some(c) = &v.covisibility {
+        walk("covisibility", &serde_json::to_value(c).expect("metrics serialize"), &mut out);
+    }
     out
 }
 
@@ -267,6 +274,7 @@ fn evaluate_one(scene: &Scene, v: usize, r: &RenderedView, lpips: &LpipsSet, out
         lpips_alex,
         full_image: base.full_image,
         geometry: base.geometry,
+        covisibility: base.covisibility,
         samples_per_ray: base.samples_per_ray as f64,
     })
 }
@@ -408,6 +416,9 @@ fn print_table(report: &EvalReport) {
         row(&v.name, &flatten_view_metrics(v));
     }
     row("mean", &report.metrics);
+    if let Some(line) = covisibility_line(&report.metrics) {
+        println!("{line}");
+    }
     if let Some(m) = &report.mesh {
         let d = &m.distances;
         println!(
@@ -415,4 +426,19 @@ fn print_table(report: &EvalReport) {
             d.chamfer, d.accuracy, d.completeness, d.fscore, d.threshold, d.precision, d.recall
         );
     }
+}
+
+/// The printed line of the covisibility split's means (`None` where no view has it):
+/// per class, its mean PSNR and mean share of the pixels.
+fn covisibility_line(metrics: &BTreeMap<String, f64>) -> Option<String> {
+    let classes = [("none", "unseen"), ("one", "seen_once"), ("two or more", "seen_twice_or_more")];
+    let cells: Vec<String> = classes
+        .iter()
+        .filter_map(|(label, key)| {
+            let psnr = metrics.get(&format!("covisibility.{key}.psnr"))?;
+            let share = metrics.get(&format!("covisibility.{key}.fraction")).copied().unwrap_or(0.0);
+            Some(format!("{label} {psnr:.2} dB ({:.0} % of pixels)", 100.0 * share))
+        })
+        .collect();
+    (!cells.is_empty()).then(|| format!("PSNR by how many training views see the surface (means over the views with such pixels): {}", cells.join(", ")))
 }
