@@ -11,9 +11,13 @@
 //! within [`CovisibilityParams::rel_tolerance`] (nothing nearer hides it). Pixels
 //! without a ground-truth surface are in no class.
 //!
+//! Scenes with more than [`MAX_TRAINING_VIEWS`] training views are not split.
+//!
 //! Invariants: pure CPU on per-pixel slices in [`crate::data`]'s conventions (depth is
 //! the ray distance, `> 0` where there is a surface); a view is never counted as seeing
 //! itself (callers leave it out of `train`); a class without pixels is `None`.
+
+use rayon::prelude::*;
 
 use crate::data::camera::Camera;
 
@@ -62,6 +66,12 @@ pub struct Covisibility {
 /// Marks a pixel without a ground-truth surface in [`views_seeing`].
 pub const NO_SURFACE: u8 = u8::MAX;
 
+/// Most training views the evaluation splits PSNR by (`train::evaluate`): the split is
+/// for sparse views, and its cost grows with pixels times training views (a dense
+/// capture of 100 views at 800 x 800 would project 64 M points per test view, and
+/// nearly every pixel is seen twice there anyway).
+pub const MAX_TRAINING_VIEWS: usize = 16;
+
 /// Per pixel of `view`, how many of `train` see its ground-truth surface point (at most
 /// 254), or [`NO_SURFACE`].
 pub fn views_seeing(view: DepthView, train: &[DepthView], params: &CovisibilityParams) -> Result<Vec<u8>, MetricsError> {
@@ -71,32 +81,29 @@ pub fn views_seeing(view: DepthView, train: &[DepthView], params: &CovisibilityP
         MetricsError::check_len("a training view's ground-truth depth", (t.camera.width * t.camera.height) as usize, t.depth.len())?;
     }
     let w2c: Vec<_> = train.iter().map(|t| t.camera.w2c()).collect();
-    let mut counts = vec![NO_SURFACE; view.depth.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let i = (y * w + x) as usize;
-            let d = view.depth[i];
-            if !valid_depth(d) {
+    let count = |i: usize| {
+        let d = view.depth[i];
+        if !valid_depth(d) {
+            return NO_SURFACE;
+        }
+        let (x, y) = ((i as u32 % w) as f32 + 0.5, (i as u32 / w) as f32 + 0.5);
+        let p = view.camera.pixel_ray(x, y).at(d);
+        let mut n = 0u8;
+        for (t, w2c) in train.iter().zip(&w2c) {
+            let Some((px, _)) = t.camera.project_with(w2c, p) else { continue };
+            if !t.camera.in_frame(px) {
                 continue;
             }
-            let p = view.camera.pixel_ray(x as f32 + 0.5, y as f32 + 0.5).at(d);
-            let mut n = 0u8;
-            for (t, w2c) in train.iter().zip(&w2c) {
-                let Some((px, _)) = t.camera.project_with(w2c, p) else { continue };
-                if !t.camera.in_frame(px) {
-                    continue;
-                }
-                let (tx, ty) = ((px.x.floor() as u32).min(t.camera.width - 1), (px.y.floor() as u32).min(t.camera.height - 1));
-                let seen = t.depth[(ty * t.camera.width + tx) as usize];
-                let dist = (p - t.camera.origin()).length();
-                if valid_depth(seen) && (seen - dist).abs() <= params.rel_tolerance * dist {
-                    n = n.saturating_add(1).min(NO_SURFACE - 1);
-                }
+            let (tx, ty) = ((px.x.floor() as u32).min(t.camera.width - 1), (px.y.floor() as u32).min(t.camera.height - 1));
+            let seen = t.depth[(ty * t.camera.width + tx) as usize];
+            let dist = (p - t.camera.origin()).length();
+            if valid_depth(seen) && (seen - dist).abs() <= params.rel_tolerance * dist {
+                n = n.saturating_add(1).min(NO_SURFACE - 1);
             }
-            counts[i] = n;
         }
-    }
-    Ok(counts)
+        n
+    };
+    Ok((0..view.depth.len()).into_par_iter().with_min_len(1024).map(count).collect())
 }
 
 /// PSNR of `rgb` against `gt` (RGB interleaved, `view`'s size) over each class of

@@ -20,7 +20,7 @@ use crate::metrics::geometry::{DepthErrors, GeometryInputs, GeometryMetrics, Geo
 use crate::metrics::image::ImageMetrics;
 use crate::metrics::protocol::{Protocol, score_view};
 use crate::metrics::MetricsError;
-use crate::metrics::covisibility::{Covisibility, CovisibilityParams, DepthView, covisibility};
+use crate::metrics::covisibility::{Covisibility, CovisibilityParams, DepthView, MAX_TRAINING_VIEWS, covisibility};
 
 use super::TrainError;
 use super::model::{Model, RenderedView};
@@ -71,8 +71,9 @@ pub struct ViewEvaluation {
     /// rendered ones.
     pub geometry: Option<GeometryMetrics>,
     /// PSNR over the pixels whose ground-truth surface no training view, one, or two or
-    /// more see (world-space scenes whose views all have ground-truth depth; absent
-    /// otherwise). Full-image pixels, whatever `protocol` is.
+    /// more see (world-space scenes whose views all have ground-truth depth, with at
+    /// most [`MAX_TRAINING_VIEWS`] training views; absent otherwise). Full-image pixels,
+    /// whatever `protocol` is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub covisibility: Option<Covisibility>,
 }
@@ -121,13 +122,13 @@ pub fn evaluate_view(scene: &Scene, v: usize, r: &RenderedView) -> Result<ViewEv
 }
 
 /// [`ViewEvaluation::covisibility`] of `rgb`, the render of view `v`: `None` in NDC,
-/// without training views, or where this view or a training view lacks ground-truth
-/// depth.
+/// without training views or with more than [`MAX_TRAINING_VIEWS`], or where this view
+/// or a training view lacks ground-truth depth.
 fn covisibility_of(scene: &Scene, v: usize, rgb: &[f32]) -> Result<Option<Covisibility>, MetricsError> {
     let depth_view = |i: usize| scene.views[i].depth.as_deref().map(|depth| DepthView { camera: &scene.views[i].camera, depth });
     let train: Option<Vec<DepthView>> = scene.split.train.iter().filter(|&&i| i != v).map(|&i| depth_view(i)).collect();
     match (depth_view(v), train) {
-        (Some(view), Some(train)) if scene.ndc.is_none() && !train.is_empty() => {
+        (Some(view), Some(train)) if scene.ndc.is_none() && !train.is_empty() && train.len() <= MAX_TRAINING_VIEWS => {
             Ok(Some(covisibility(rgb, &scene.views[v].image.data, view, &train, &CovisibilityParams::default())?))
         }
         _ => Ok(None),
