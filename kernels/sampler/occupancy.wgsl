@@ -13,7 +13,8 @@ struct QueryParams {
     // Points to produce.
     count: u32,
     seed: u32,
-    // 1: point i is in cell i (warm-up, all cells); 0: random selection below.
+    // 1: point i is in cell i mod n_cells (warm-up, all cells, count / n_cells points
+    // each); 0: random selection below.
     all_cells: u32,
     // Points [0, n_uniform) are in uniformly random cells; the others come from
     // `occupied` (list_len entries): entry i - n_uniform when list_len fits
@@ -37,7 +38,7 @@ struct CountParams {
 @group(0) @binding(2) var<storage, read_write> query_pos: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> query_cell: array<u32>;
 
-// One point per chosen cell, uniformly jittered inside it; w = 0.
+// One point per query, uniformly jittered inside its cell (each point its own draw); w = 0.
 @compute @workgroup_size(WG_SIZE)
 fn query_points(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = thread_index(gid, nwg);
@@ -45,7 +46,7 @@ fn query_points(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         return;
     }
     let n_cells = qp.geom.n_cells;
-    var cell = i;
+    var cell = i % n_cells;
     if (qp.all_cells == 0u) {
         if (i < qp.n_uniform) {
             cell = rand_u32(qp.seed, i, 0u) % n_cells;

@@ -154,6 +154,14 @@ pub struct SamplerConfig {
     /// `room` and the held-out `den`, PSNR -0.12, -0.75, -0.32 and -0.43 dB: cells
     /// emptied before the structures that would fill them formed.
     pub warmup_decay: Option<f32>,
+    /// Jittered points per cell in the warm-up's updates (every cell queried; the cell
+    /// keeps the largest density found). 1 (the default): one point a cell, nerfacc's
+    /// rule. A structure thinner than a cell is found by one random point only now and
+    /// then, so a short `warmup_decay` can empty its cell before it forms; several
+    /// points find it at each update. Costs `n^3 * (k - 1)` more density queries per
+    /// warm-up update. At most [`MAX_WARMUP_POINTS_PER_CELL`], and at most
+    /// [`MAX_WARMUP_QUERY_POINTS`] points an update.
+    pub warmup_points_per_cell: u32,
     /// Occupancy threshold on the opacity of one marching step, `sigma * step`
     /// (nerfacc's `occ_thre`): a cell is occupied iff its density exceeds
     /// `min(threshold / step, mean density)` ([`SamplerConfig::density_threshold`]).
@@ -289,6 +297,7 @@ impl Default for SamplerConfig {
             resolution: 128,
             decay: 0.95,
             warmup_decay: None,
+            warmup_points_per_cell: 1,
             threshold: 0.01,
             update_interval: 16,
             warmup_steps: 256,
@@ -310,6 +319,14 @@ impl Default for SamplerConfig {
 /// Largest [`SamplerConfig::render_resolution`]: a 128^3 grid's query (one point a cell
 /// at a time) is 32 MiB of positions, within every adapter's storage binding limit.
 pub const MAX_RENDER_RESOLUTION: u32 = 128;
+
+/// Largest [`SamplerConfig::warmup_points_per_cell`].
+pub const MAX_WARMUP_POINTS_PER_CELL: u32 = 16;
+
+/// Most points of one warm-up update with [`SamplerConfig::warmup_points_per_cell`] above
+/// 1: 2^23 positions are 128 MiB, wgpu's default storage binding limit (4 points a cell
+/// at 128^3, 16 at 64^3).
+pub const MAX_WARMUP_QUERY_POINTS: u64 = 1 << 23;
 
 /// Jittered points per cell at which [`SamplerConfig::render_resolution`]'s grid
 /// probes the field (each its own draw; the cell keeps the largest density).
@@ -349,6 +366,17 @@ impl SamplerConfig {
         }
         if let Some(d) = self.warmup_decay.filter(|d| !(0.0..=1.0).contains(d)) {
             return fail(format!("warmup_decay {d} not in [0, 1]"));
+        }
+        let k = self.warmup_points_per_cell;
+        if !(1..=MAX_WARMUP_POINTS_PER_CELL).contains(&k) {
+            return fail(format!("warmup_points_per_cell {k} not in [1, {MAX_WARMUP_POINTS_PER_CELL}]"));
+        }
+        let points = k as u64 * (self.resolution as u64).pow(3);
+        if k > 1 && points > MAX_WARMUP_QUERY_POINTS {
+            return fail(format!(
+                "warmup_points_per_cell {k} at resolution {} queries {points} points an update, over {MAX_WARMUP_QUERY_POINTS}: lower one of them",
+                self.resolution
+            ));
         }
         if !(self.threshold >= 0.0 && self.threshold.is_finite()) {
             return fail(format!("threshold {} must be finite and >= 0", self.threshold));

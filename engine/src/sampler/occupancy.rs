@@ -13,7 +13,8 @@
 //! ([`super::bricks`]) are rebuilt and uploaded.
 //!
 //! Cell selection (nerfacc's `_sample_uniform_and_occupied_cells`): during warm-up
-//! (`step < warmup_steps`) every cell, point `i` in cell `i`; afterwards `n/4` cells
+//! (`step < warmup_steps`) every cell, point `i` in cell `i mod n^3`
+//! (`warmup_points_per_cell` rounds over the grid); afterwards `n/4` cells
 //! drawn uniformly, then the occupied cells: all of them in index order when there
 //! are at most `n/4`, else `n/4` drawn uniformly from them. Draws and jitter use the
 //! PCG hash of `(seed, point, k)`: deterministic for a seed.
@@ -199,7 +200,7 @@ impl OccupancyGrid {
     pub fn record_query_points(&self, enc: &mut Encoder, step: u32, seed: u32) -> Result<OccupancyQuery, SamplerError> {
         let n_cells = self.geom.n_cells;
         let (all_cells, n_uniform, count) = if step < self.config.warmup_steps {
-            (1, 0, n_cells)
+            (1, 0, n_cells * self.config.warmup_points_per_cell)
         } else {
             let quarter = n_cells / 4;
             (0, quarter, quarter + self.n_occupied.min(quarter))
@@ -527,7 +528,7 @@ pub(crate) mod tests {
         fn query_cells(&self, step: u32, seed: u32) -> Vec<u32> {
             let n = self.density.len() as u32;
             if step < self.cfg.warmup_steps {
-                return (0..n).collect();
+                return (0..n * self.cfg.warmup_points_per_cell).map(|i| i % n).collect();
             }
             let occupied: Vec<u32> = (0..n).filter(|&c| self.bits[c as usize]).collect();
             let quarter = n / 4;
@@ -574,9 +575,22 @@ pub(crate) mod tests {
     #[test]
     fn sampler_grid_update_matches_cpu_reference_through_warmup() {
         let gpu = crate::gpu::test_gpu(false);
+        for points in [1, 3] {
+            grid_update_matches_cpu_reference(&gpu, points);
+        }
+    }
+
+    /// The test above with `warmup_points_per_cell = points`.
+    fn grid_update_matches_cpu_reference(gpu: &Gpu, points: u32) {
         // A warm-up decay of its own, so both phases' EMA are checked.
-        let cfg =
-            SamplerConfig { resolution: 24, warmup_steps: 48, warmup_decay: Some(0.5), brick_size: 4, ..Default::default() };
+        let cfg = SamplerConfig {
+            resolution: 24,
+            warmup_steps: 48,
+            warmup_decay: Some(0.5),
+            warmup_points_per_cell: points,
+            brick_size: 4,
+            ..Default::default()
+        };
         let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
         let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
         let n = 24u32.pow(3);
@@ -597,6 +611,8 @@ pub(crate) mod tests {
             if step >= cfg.warmup_steps {
                 saw_random_phase = true;
                 assert!(cells.len() < n as usize);
+            } else {
+                assert_eq!(cells.len(), (points * n) as usize, "{points} points a cell in the warm-up");
             }
             // Each point lies in its cell, at the jitter the hash gives.
             for (i, (&c, p)) in cells.iter().zip(&pos).enumerate() {
@@ -634,6 +650,35 @@ pub(crate) mod tests {
         let a = grid.query_points(&gpu, 500, 7).unwrap();
         let b = grid.query_points(&gpu, 500, 7).unwrap();
         assert_eq!(a.positions.read(&gpu).unwrap(), b.positions.read(&gpu).unwrap());
+    }
+
+    #[test]
+    fn several_warmup_points_per_cell_find_a_structure_thinner_than_a_cell() {
+        let gpu = crate::gpu::test_gpu(false);
+        let aabb = [Vec3::splat(-1.0), Vec3::splat(1.0)];
+        // A slab a sixteenth of a cell thick (cells 0.125 wide), inside the column of
+        // cells with x index 9: one jittered point lands in it one time in sixteen.
+        let slab = |p: [f32; 4]| if (p[0] - 0.19).abs() < 0.004 { 10.0 } else { 0.0 };
+        let found = |points: u32| {
+            let cfg = SamplerConfig { resolution: 16, warmup_points_per_cell: points, brick_size: 4, ..Default::default() };
+            let mut grid = OccupancyGrid::new(&gpu, &cfg, aabb).unwrap();
+            let q = grid.query_points(&gpu, 0, 11).unwrap();
+            assert_eq!(q.count, points * 16u32.pow(3));
+            let dens: Vec<f32> = q.positions.read(&gpu).unwrap().into_iter().map(slab).collect();
+            let dbuf = GpuBuffer::from_slice(&gpu, "dens", &dens).unwrap();
+            let upd = grid.update(&gpu, &q.cells, &dbuf, q.count, q.decay).unwrap();
+            let in_slab = (0..16 * 16).filter(|&yz| grid.is_occupied(9, yz % 16, yz / 16)).count();
+            assert_eq!(upd.occupied_cells as usize, in_slab, "{points} points: only the slab's cells are occupied");
+            in_slab
+        };
+        let (one, sixteen) = (found(1), found(16));
+        // Expected: 1 - (15/16)^k of the 256 cells, 16 at k = 1 and 166 at k = 16.
+        assert!(one < 40, "one point a cell found {one} of the slab's 256 cells");
+        assert!(sixteen > 128 && sixteen > 4 * one.max(1), "16 points a cell found {sixteen} (one point: {one})");
+        // Over the limit of points an update: a clear error, not an allocation failure.
+        let too_many = SamplerConfig { resolution: 256, warmup_points_per_cell: 2, ..Default::default() };
+        let err = too_many.validate().unwrap_err().to_string();
+        assert!(err.contains("warmup_points_per_cell 2") && err.contains("lower one of them"), "{err}");
     }
 
     #[test]
