@@ -145,6 +145,21 @@ pub struct PriorConfig {
     /// table tops), whose windows the sweep along the rays shears where the views stand
     /// far apart (`crate::train::stereo`). Off: the sweep along the rays alone.
     pub stereo_horizontal: bool,
+    /// Where the stereo priors' targets come from: `sweep` (the default: the plane
+    /// sweep over the training photographs) or `ground_truth`: the scene's own
+    /// ground-truth depth on every training pixel with a surface, as if confirmed (a
+    /// synthetic scene's `*_depth.exr`; refused on a scene without it). Not a prior but
+    /// an upper bound: what a perfect depth prior would give the same run.
+    pub stereo_targets: StereoTargetSource,
+}
+
+/// [`PriorConfig::stereo_targets`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StereoTargetSource {
+    #[default]
+    Sweep,
+    GroundTruth,
 }
 
 impl Default for PriorConfig {
@@ -170,6 +185,7 @@ impl Default for PriorConfig {
             stereo_fill: 0,
             stereo_uniqueness: 1.0,
             stereo_horizontal: false,
+            stereo_targets: StereoTargetSource::Sweep,
         }
     }
 }
@@ -189,6 +205,9 @@ impl PriorConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight >= 0, got {v}"));
             }
+        }
+        if self.stereo_targets == StereoTargetSource::GroundTruth && !self.stereo_on() {
+            return Err("priors.stereo_targets = \"ground_truth\" feeds the stereo priors, which are off: set priors.stereo_depth or priors.stereo_free_space above 0".into());
         }
         let tol = self.foreground_tolerance;
         if !(tol.is_finite() && tol > 0.0) {
@@ -345,7 +364,7 @@ impl RayPriors {
 
 #[cfg(test)]
 mod tests {
-    use super::PriorConfig;
+    use super::{PriorConfig, StereoTargetSource};
 
     #[test]
     fn the_opacity_penalty_falls_to_zero_over_its_steps() {
@@ -373,6 +392,14 @@ mod tests {
             assert!(PriorConfig { stereo_consistency: bad, ..on }.validate().unwrap_err().contains("priors.stereo_consistency"));
             assert!(PriorConfig { stereo_delta: bad, ..on }.validate().unwrap_err().contains("priors.stereo_delta"));
         }
+    }
+
+    #[test]
+    fn ground_truth_stereo_targets_need_a_stereo_prior() {
+        let gt = PriorConfig { stereo_targets: StereoTargetSource::GroundTruth, ..Default::default() };
+        assert!(gt.validate().unwrap_err().contains("priors.stereo_depth"));
+        assert!(PriorConfig { stereo_depth: 0.1, ..gt }.validate().is_ok());
+        assert!(PriorConfig { stereo_free_space: 0.03, ..gt }.validate().is_ok());
     }
 
     #[test]

@@ -398,6 +398,12 @@ impl Trainer {
         self.pipeline.stereo_coverage()
     }
 
+    /// With the stereo priors, on a scene with ground-truth depth: how well the confirmed
+    /// targets agree with it ([`stereo::accuracy`]).
+    pub fn stereo_accuracy(&self) -> Option<stereo::Accuracy> {
+        stereo::accuracy(&self.scene, self.pipeline.stereo_targets()?)
+    }
+
     /// The stereo priors' targets `[depth, confidence]` per scene view and pixel
     /// ([`stereo::StereoTargets`]), when one of them is on.
     pub fn stereo_targets(&self) -> Option<&stereo::StereoTargets> {

@@ -49,7 +49,7 @@ use crate::optim::Guard;
 use crate::loss::photometric::{OpacityPriors, Recomposite};
 use crate::loss::stereo_depth::StereoDepth;
 use crate::loss::{sum_terms, DepthNormal, DepthTv, EdgeReg, EdgeRegWeights, Photometric, Planarity, PlanarityTerm, Reprojection};
-use crate::render::{Background, RenderConfig, RayPriors, Renderer};
+use crate::render::{Background, RenderConfig, RayPriors, Renderer, StereoTargetSource};
 use crate::sampler::{DropTruncated, LiveCompaction, Visibility};
 use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayAux, RayOutput};
 
@@ -235,7 +235,11 @@ impl Pipeline {
                 None if p.stereo_fill > 0 => Some(crate::edges::edge_masks(scene, &scene.split.train, &config.edges)?),
                 _ => None,
             };
-            let maps = stereo::sweep(scene, settings, masks.or(computed.as_deref())).map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
+            let maps = match p.stereo_targets {
+                StereoTargetSource::Sweep => stereo::sweep(scene, settings, masks.or(computed.as_deref())),
+                StereoTargetSource::GroundTruth => stereo::ground_truth(scene),
+            }
+            .map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
             Some((StereoDepth::new(gpu, n)?, maps))
         } else {
             None

@@ -77,6 +77,66 @@ pub fn up_direction(scene: &Scene) -> Option<Vec3> {
     (mean.length() >= 0.5).then(|| mean.normalize())
 }
 
+/// The stereo priors' targets from the scene's ground-truth depth
+/// (`priors.stereo_targets = "ground_truth"`): every training pixel with a true surface
+/// gets its ray distance, confirmed (confidence 1); a training view without depth is
+/// refused. The sweep's rays have unit directions, so ray parameters are distances.
+pub fn ground_truth(scene: &Scene) -> Result<StereoTargets, String> {
+    check_scene(scene)?;
+    (0..scene.views.len())
+        .map(|v| {
+            if !scene.split.train.contains(&v) {
+                return Ok(None);
+            }
+            let view = &scene.views[v];
+            let depth = view.depth.as_ref().ok_or_else(|| {
+                format!(
+                    "priors.stereo_targets = \"ground_truth\" needs the training views' ground-truth depth (a synthetic scene's *_depth.exr); view {} has none: use \"sweep\"",
+                    view.name
+                )
+            })?;
+            Ok(Some(depth.iter().map(|&d| if d > 0.0 && d.is_finite() { [d, 1.0] } else { [0.0, 0.0] }).collect()))
+        })
+        .collect()
+}
+
+/// How well the confirmed stereo depths of a scene with ground-truth depth (a synthetic
+/// scene) agree with it ([`accuracy`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Accuracy {
+    /// Confirmed pixels with a ground-truth surface.
+    pub pixels: usize,
+    /// The median of `|t - d| / d` over them (`t` the target, `d` the true ray distance).
+    pub median_error: f32,
+    /// The share of them off by more than [`ACCURACY_OUTLIER`] of the true depth.
+    pub outliers: f32,
+}
+
+/// [`Accuracy::outliers`]: a confirmed depth off by more than this share of the true
+/// depth counts as an outlier.
+pub const ACCURACY_OUTLIER: f32 = 0.1;
+
+/// The confirmed targets (confidence 1) of `targets` against the ground-truth ray
+/// distances of the views that have them (`View::depth`, 0: no surface); `None` where no
+/// confirmed pixel has one (real photographs). Ray parameters are distances: the sweep's
+/// rays have unit directions.
+pub fn accuracy(scene: &Scene, targets: &StereoTargets) -> Option<Accuracy> {
+    let mut errors: Vec<f32> = targets
+        .iter()
+        .zip(&scene.views)
+        .filter_map(|(t, v)| Some((t.as_ref()?, v.depth.as_ref()?)))
+        .flat_map(|(t, d)| t.iter().zip(d).filter(|(t, d)| t[1] >= 1.0 && **d > 0.0).map(|(t, &d)| (t[0] - d).abs() / d))
+        .collect();
+    if errors.is_empty() {
+        return None;
+    }
+    errors.sort_by(f32::total_cmp);
+    let n = errors.len();
+    let median_error = if n % 2 == 1 { errors[n / 2] } else { 0.5 * (errors[n / 2 - 1] + errors[n / 2]) };
+    let outliers = errors.iter().filter(|&&e| e > ACCURACY_OUTLIER).count() as f32 / n as f32;
+    Some(Accuracy { pixels: n, median_error, outliers })
+}
+
 /// A family of planes the sweep tries at every pixel.
 #[derive(Clone, Copy, Debug)]
 enum Family {
@@ -598,5 +658,57 @@ mod tests {
         assert_eq!(m[5], (0.0 + 1.0 + 2.0 + 4.0 + 5.0 + 6.0 + 8.0 + 9.0 + 10.0) / 9.0);
         assert_eq!(m[0], (0.0 + 1.0 + 4.0 + 5.0) / 4.0);
         assert_eq!(box_mean(&v, 4, 3, 0), v);
+    }
+
+    /// The accuracy report: the median relative error and the outliers' share over the
+    /// confirmed targets of the views with ground-truth depth, nothing without it.
+    #[test]
+    fn accuracy_is_measured_on_the_confirmed_targets_against_the_true_depth() {
+        let mut scene = floor_scene();
+        let n = scene.views[0].image.data.len() / 3;
+        assert!(accuracy(&scene, &vec![Some(vec![[2.0, 1.0]; n]); 3]).is_none(), "no ground truth, no report");
+        scene.views[0].depth = Some(vec![2.0; n]);
+        scene.views[1].depth = Some(vec![2.0; n]);
+        // View 0: 5 targets, 1 % / 2 % / 3 % / 20 % / 50 % off; a filled target (confidence
+        // under 1) and a pixel without a true surface are not counted. View 1: none
+        // confirmed. View 2: confirmed but without ground truth.
+        let mut t0 = vec![[0.0, 0.0]; n];
+        for (i, e) in [0.01f32, 0.02, 0.03, 0.2, -0.5].iter().enumerate() {
+            t0[i] = [2.0 * (1.0 + e), 1.0];
+        }
+        t0[5] = [9.0, 0.5];
+        t0[6] = [9.0, 1.0];
+        scene.views[0].depth.as_mut().unwrap()[6] = 0.0;
+        let targets = vec![Some(t0), Some(vec![[0.0, 0.0]; n]), Some(vec![[9.0, 1.0]; n])];
+        let a = accuracy(&scene, &targets).unwrap();
+        assert_eq!(a.pixels, 5);
+        assert!((a.median_error - 0.03).abs() < 1e-5, "{a:?}");
+        assert!((a.outliers - 0.4).abs() < 1e-6, "{a:?}");
+    }
+
+    /// Ground-truth targets: each training pixel's true distance, confirmed; pixels
+    /// without a surface get none, test views nothing; a training view without depth
+    /// is refused with what to do.
+    #[test]
+    fn ground_truth_targets_are_the_training_views_true_depths() {
+        let mut scene = floor_scene();
+        let n = scene.views[0].image.data.len() / 3;
+        let err = ground_truth(&scene).unwrap_err();
+        assert!(err.contains("ground_truth") && err.contains("v0") && err.contains("sweep"), "{err}");
+        for (i, v) in scene.views.iter_mut().enumerate() {
+            let mut d: Vec<f32> = (0..n).map(|p| 2.0 + 0.001 * (p + i) as f32).collect();
+            d[3] = 0.0;
+            v.depth = Some(d);
+        }
+        scene.split = Split { train: vec![0, 2], test: vec![1] };
+        let t = ground_truth(&scene).unwrap();
+        assert!(t[1].is_none(), "a test view gets no targets");
+        for v in [0, 2] {
+            let t = t[v].as_ref().unwrap();
+            assert_eq!(t[3], [0.0, 0.0], "no surface, no target");
+            assert_eq!(t[10], [2.0 + 0.001 * (10 + v) as f32, 1.0]);
+        }
+        let a = accuracy(&scene, &t).unwrap();
+        assert_eq!((a.pixels, a.median_error, a.outliers), (2 * (n - 1), 0.0, 0.0));
     }
 }

@@ -672,13 +672,30 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
             (true, Some(up)) => format!(" and {} planes across the cameras' mean up vector ({:.2}, {:.2}, {:.2})", p.stereo_planes, up.x, up.y, up.z),
             (true, None) => " (no planes across an up direction: the training cameras disagree about up)".to_string(),
         };
-        eprintln!(
-            "stereo depth prior: a sweep of {} depth planes{across} over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {}){fill}",
-            p.stereo_planes,
-            100.0 * confirmed,
-            p.stereo_depth,
-            p.stereo_consistency
-        );
+        if p.stereo_targets == edgenerf::render::StereoTargetSource::GroundTruth {
+            eprintln!(
+                "stereo priors on the scene's ground-truth depth (priors.stereo_targets = \"ground_truth\"): {:.1} % of the training pixels, an upper bound for a depth prior, not a prior (priors.stereo_depth = {})",
+                100.0 * confirmed,
+                p.stereo_depth
+            );
+        } else {
+            eprintln!(
+                "stereo depth prior: a sweep of {} depth planes{across} over the training views gave {:.1} % of their pixels a depth another view confirms (priors.stereo_depth = {}; priors.stereo_consistency = {}){fill}",
+                p.stereo_planes,
+                100.0 * confirmed,
+                p.stereo_depth,
+                p.stereo_consistency
+            );
+        }
+        if let Some(a) = trainer.stereo_accuracy().filter(|_| p.stereo_targets == edgenerf::render::StereoTargetSource::Sweep) {
+            eprintln!(
+                "stereo depth prior against the scene's ground-truth depth: {} confirmed pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
+                a.pixels,
+                100.0 * a.median_error,
+                100.0 * a.outliers,
+                100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
+            );
+        }
         let dir = args.out.join("stereo");
         write_stereo_maps(&trainer, &dir).with_context(|| format!("writing the stereo targets to {}", dir.display()))?;
         eprintln!("stereo targets: depth and confidence per training view in {}", dir.display());
