@@ -229,14 +229,16 @@ impl Pipeline {
         let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
             let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness, horizontal: p.stereo_horizontal };
-            // The fill reads the edge masks; a run whose regularizers do not read them
-            // gets them here.
-            let computed = match masks {
-                None if p.stereo_fill > 0 => Some(crate::edges::edge_masks(scene, &scene.split.train, &config.edges)?),
-                _ => None,
-            };
             let maps = match p.stereo_targets {
-                StereoTargetSource::Sweep => stereo::sweep(scene, settings, masks.or(computed.as_deref())),
+                StereoTargetSource::Sweep => {
+                    // The fill reads the edge masks; a run whose regularizers do not read
+                    // them gets them here.
+                    let computed = match masks {
+                        None if p.stereo_fill > 0 => Some(crate::edges::edge_masks(scene, &scene.split.train, &config.edges)?),
+                        _ => None,
+                    };
+                    stereo::sweep(scene, settings, masks.or(computed.as_deref()))
+                }
                 StereoTargetSource::GroundTruth => stereo::ground_truth(scene),
             }
             .map_err(|message| TrainError::Config { source_name: "config".into(), message })?;

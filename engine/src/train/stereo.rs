@@ -121,19 +121,15 @@ pub const ACCURACY_OUTLIER: f32 = 0.1;
 /// confirmed pixel has one (real photographs). Ray parameters are distances: the sweep's
 /// rays have unit directions.
 pub fn accuracy(scene: &Scene, targets: &StereoTargets) -> Option<Accuracy> {
-    let mut errors: Vec<f32> = targets
+    let mut errors: Vec<f64> = targets
         .iter()
         .zip(&scene.views)
         .filter_map(|(t, v)| Some((t.as_ref()?, v.depth.as_ref()?)))
-        .flat_map(|(t, d)| t.iter().zip(d).filter(|(t, d)| t[1] >= 1.0 && **d > 0.0).map(|(t, &d)| (t[0] - d).abs() / d))
+        .flat_map(|(t, d)| t.iter().zip(d).filter(|(t, d)| t[1] >= 1.0 && **d > 0.0).map(|(t, &d)| ((t[0] - d).abs() / d) as f64))
         .collect();
-    if errors.is_empty() {
-        return None;
-    }
-    errors.sort_by(f32::total_cmp);
     let n = errors.len();
-    let median_error = if n % 2 == 1 { errors[n / 2] } else { 0.5 * (errors[n / 2 - 1] + errors[n / 2]) };
-    let outliers = errors.iter().filter(|&&e| e > ACCURACY_OUTLIER).count() as f32 / n as f32;
+    let outliers = errors.iter().filter(|&&e| e > ACCURACY_OUTLIER as f64).count() as f32 / n.max(1) as f32;
+    let median_error = crate::data::quantile(&mut errors, 0.5)? as f32;
     Some(Accuracy { pixels: n, median_error, outliers })
 }
 

@@ -686,15 +686,15 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
                 p.stereo_depth,
                 p.stereo_consistency
             );
-        }
-        if let Some(a) = trainer.stereo_accuracy().filter(|_| p.stereo_targets == edgenerf::render::StereoTargetSource::Sweep) {
-            eprintln!(
-                "stereo depth prior against the scene's ground-truth depth: {} confirmed pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
-                a.pixels,
-                100.0 * a.median_error,
-                100.0 * a.outliers,
-                100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
-            );
+            if let Some(a) = trainer.stereo_accuracy() {
+                eprintln!(
+                    "stereo depth prior against the scene's ground-truth depth: {} confirmed pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
+                    a.pixels,
+                    100.0 * a.median_error,
+                    100.0 * a.outliers,
+                    100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
+                );
+            }
         }
         let dir = args.out.join("stereo");
         write_stereo_maps(&trainer, &dir).with_context(|| format!("writing the stereo targets to {}", dir.display()))?;
