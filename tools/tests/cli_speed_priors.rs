@@ -151,3 +151,49 @@ fn priors_train_and_are_logged() {
     let o = edgenerf(&["train", scene.to_str().unwrap(), "--out", out.path().join("bad").to_str().unwrap(), "--set", "priors.distortion=-1"]);
     assert!(!o.status.success() && text(&o).contains("priors.distortion"), "{}", text(&o));
 }
+
+/// Monocular depth maps (`priors.mono_depth_dir`) reach the stereo depth prior: maps
+/// written from creases' true depth as relative disparity (an unknown scale and shift
+/// per view, as Depth Anything writes them) are fitted to the sweep and give the
+/// pixels the sweep left without a depth targets within a few per cent of the truth,
+/// which `train` reports; a missing map is an error naming the view and the file.
+#[test]
+fn monocular_depth_maps_are_fitted_to_the_sweep_and_reported() {
+    let out = tempfile::tempdir().unwrap();
+    let maps = out.path().join("mono");
+    std::fs::create_dir_all(&maps).unwrap();
+    let scene_dir = repo().join("synthetic-scenes/small/creases");
+    let opts = edgenerf::data::LoadOptions { views: Some(3), ..Default::default() };
+    let scene = edgenerf::data::Scene::load(&scene_dir, &opts).unwrap();
+    for (i, &v) in scene.split.train.iter().enumerate() {
+        let view = &scene.views[v];
+        let (w, h) = (view.camera.width, view.camera.height);
+        let depth = view.depth.as_ref().expect("creases has ground-truth depth");
+        let (scale, shift) = (2.0 + i as f64, 0.1 * i as f64);
+        let disparity: Vec<f64> = (0..h * w)
+            .map(|p| {
+                let t = depth[p as usize] as f64;
+                let z = t * scene.ray(v, p % w, p / w).z_scale as f64;
+                if t > 0.0 { scale / z + shift } else { f64::NAN }
+            })
+            .collect();
+        edgenerf::data::npy::write_npy_f64(&maps.join(format!("{}.npy", view.name)), &[h as usize, w as usize], &disparity).unwrap();
+    }
+    let dir = out.path().join("run");
+    let mono = format!("priors.mono_depth_dir=\"{}\"", maps.display());
+    let o = train_creases_3v(&dir, 2, &["--set", "priors.stereo_depth=0.1", "--set", &mono]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let line = |start: &str| t.lines().find(|l| l.starts_with(start)).unwrap_or_else(|| panic!("no '{start}' line in:\n{t}")).to_string();
+    let filled: f64 = line("monocular depth (disparity maps").split(" % of the training pixels").next().unwrap().rsplit(' ').next().unwrap().parse().unwrap();
+    assert!(filled > 10.0, "the maps fill the pixels the sweep left: {filled} %\n{t}");
+    let accuracy = line("monocular targets against the scene's ground-truth depth");
+    let median: f64 = accuracy.split("median error ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!(median < 2.0, "{accuracy}");
+    // Every view's map must be there.
+    let first = &scene.views[scene.split.train[0]].name;
+    std::fs::remove_file(maps.join(format!("{first}.npy"))).unwrap();
+    let o = train_creases_3v(&out.path().join("missing"), 1, &["--set", "priors.stereo_depth=0.1", "--set", &mono]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains(&format!("no monocular depth map for training view {first}")), "{t}");
+}

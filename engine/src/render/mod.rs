@@ -84,7 +84,7 @@ pub mod reference;
 mod tests;
 
 pub use background::{LearnedBackground, LearnedBackgroundConfig, Prefit, ShellShape};
-pub use priors::{PriorConfig, PriorTerms, RayPriors, StereoTargetSource};
+pub use priors::{MonoDepthKind, PriorConfig, PriorTerms, RayPriors, StereoTargetSource};
 
 use std::sync::Arc;
 

@@ -60,7 +60,7 @@
 //! did before.
 
 /// The priors' settings in a run configuration (`[priors]`). All off by default.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PriorConfig {
     /// Weight of mip-NeRF 360's distortion loss (0: off; mip-NeRF 360 uses 0.01).
@@ -151,6 +151,30 @@ pub struct PriorConfig {
     /// synthetic scene's `*_depth.exr`; refused on a scene without it). Not a prior but
     /// an upper bound: what a perfect depth prior would give the same run.
     pub stereo_targets: StereoTargetSource,
+    /// A folder of monocular depth maps, one per training image (`<image stem>.npy` or
+    /// a grey `.png`; Depth Anything's or MiDaS's output, say): each view's map is fitted
+    /// to the sweep's confirmed depths and gives the stereo depth prior a target on the
+    /// pixels the sweep left without one, at confidence `mono_depth_confidence`
+    /// (`crate::train::mono_depth`). Needs `stereo_depth` above 0 and the sweep's targets.
+    /// Relative paths are taken from the working directory. Default: none.
+    pub mono_depth_dir: Option<std::path::PathBuf>,
+    /// What the maps hold: `disparity` (relative inverse depth, as MiDaS and Depth
+    /// Anything write it; the default) or `depth`.
+    pub mono_depth_kind: MonoDepthKind,
+    /// The monocular targets' confidence, their weight in the stereo depth prior
+    /// against a confirmed depth's 1.
+    pub mono_depth_confidence: f32,
+}
+
+/// [`PriorConfig::mono_depth_kind`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MonoDepthKind {
+    /// Inverse depth up to scale and shift (MiDaS, DPT, Depth Anything's relative models).
+    #[default]
+    Disparity,
+    /// Depth up to scale and shift (metric models, ZoeDepth, a sensor).
+    Depth,
 }
 
 /// [`PriorConfig::stereo_targets`].
@@ -186,6 +210,9 @@ impl Default for PriorConfig {
             stereo_uniqueness: 1.0,
             stereo_horizontal: false,
             stereo_targets: StereoTargetSource::Sweep,
+            mono_depth_dir: None,
+            mono_depth_kind: MonoDepthKind::Disparity,
+            mono_depth_confidence: 0.5,
         }
     }
 }
@@ -231,6 +258,18 @@ impl PriorConfig {
         let u = self.stereo_uniqueness;
         if !(u.is_finite() && u > 0.0 && u <= 1.0) {
             return Err(format!("priors.stereo_uniqueness must be in (0, 1] (1: off), got {u}"));
+        }
+        if self.mono_depth_dir.is_some() {
+            if self.stereo_depth <= 0.0 {
+                return Err("priors.mono_depth_dir feeds the stereo depth prior, which is off: set priors.stereo_depth above 0 (0.1, say)".into());
+            }
+            if self.stereo_targets != StereoTargetSource::Sweep {
+                return Err("priors.mono_depth_dir is fitted to the plane sweep's depths: it needs priors.stereo_targets = \"sweep\"".into());
+            }
+        }
+        let mc = self.mono_depth_confidence;
+        if !(mc.is_finite() && mc > 0.0 && mc < 1.0) {
+            return Err(format!("priors.mono_depth_confidence must be in (0, 1) (a confirmed stereo depth has 1), got {mc}"));
         }
         let f = self.occlusion_range;
         if !(f.is_finite() && f > 0.0 && f <= 1.0) {
@@ -383,14 +422,27 @@ mod tests {
     fn the_stereo_prior_checks_its_sweep_settings() {
         let on = PriorConfig { stereo_depth: 0.03, ..Default::default() };
         assert!(on.validate().is_ok());
-        assert!(PriorConfig { stereo_depth: -0.1, ..on }.validate().unwrap_err().contains("priors.stereo_depth"));
-        assert!(PriorConfig { stereo_planes: 1, ..on }.validate().unwrap_err().contains("priors.stereo_planes"));
-        assert!(PriorConfig { stereo_window: 33, ..on }.validate().unwrap_err().contains("priors.stereo_window"));
-        assert!(PriorConfig { stereo_fill: 65, ..on }.validate().unwrap_err().contains("priors.stereo_fill"));
-        assert!(PriorConfig { stereo_uniqueness: 0.0, ..on }.validate().unwrap_err().contains("priors.stereo_uniqueness"));
+        assert!(PriorConfig { stereo_depth: -0.1, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_depth"));
+        assert!(PriorConfig { stereo_planes: 1, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_planes"));
+        assert!(PriorConfig { stereo_window: 33, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_window"));
+        assert!(PriorConfig { stereo_fill: 65, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_fill"));
+        assert!(PriorConfig { stereo_uniqueness: 0.0, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_uniqueness"));
         for bad in [0.0, 1.0, f32::NAN] {
-            assert!(PriorConfig { stereo_consistency: bad, ..on }.validate().unwrap_err().contains("priors.stereo_consistency"));
-            assert!(PriorConfig { stereo_delta: bad, ..on }.validate().unwrap_err().contains("priors.stereo_delta"));
+            assert!(PriorConfig { stereo_consistency: bad, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_consistency"));
+            assert!(PriorConfig { stereo_delta: bad, ..on.clone() }.validate().unwrap_err().contains("priors.stereo_delta"));
+        }
+    }
+
+    #[test]
+    fn monocular_depth_maps_need_the_stereo_depth_prior_and_its_sweep() {
+        let mono = PriorConfig { mono_depth_dir: Some("maps".into()), ..Default::default() };
+        assert!(mono.clone().validate().unwrap_err().contains("priors.stereo_depth"));
+        let on = PriorConfig { stereo_depth: 0.1, ..mono };
+        assert!(on.clone().validate().is_ok());
+        let gt = PriorConfig { stereo_targets: StereoTargetSource::GroundTruth, ..on.clone() };
+        assert!(gt.validate().unwrap_err().contains("stereo_targets"));
+        for bad in [0.0, 1.0, f32::NAN] {
+            assert!(PriorConfig { mono_depth_confidence: bad, ..on.clone() }.validate().unwrap_err().contains("priors.mono_depth_confidence"));
         }
     }
 
@@ -398,8 +450,8 @@ mod tests {
     fn ground_truth_stereo_targets_need_a_stereo_prior() {
         let gt = PriorConfig { stereo_targets: StereoTargetSource::GroundTruth, ..Default::default() };
         assert!(gt.validate().unwrap_err().contains("priors.stereo_depth"));
-        assert!(PriorConfig { stereo_depth: 0.1, ..gt }.validate().is_ok());
-        assert!(PriorConfig { stereo_free_space: 0.03, ..gt }.validate().is_ok());
+        assert!(PriorConfig { stereo_depth: 0.1, ..gt.clone() }.validate().is_ok());
+        assert!(PriorConfig { stereo_free_space: 0.03, ..gt.clone() }.validate().is_ok());
     }
 
     #[test]

@@ -539,7 +539,11 @@ impl RunConfig {
     /// Paths the config records must be UTF-8: `config.json` and checkpoints hold them
     /// as JSON text ([`RunConfig::to_json`] panics otherwise). The message says which.
     pub fn check_paths(&self) -> Result<(), String> {
-        let paths = [("scene.path", Some(&self.scene.path)), ("edges.dir", self.edges.dir.as_ref())];
+        let paths = [
+            ("scene.path", Some(&self.scene.path)),
+            ("edges.dir", self.edges.dir.as_ref()),
+            ("priors.mono_depth_dir", self.priors.mono_depth_dir.as_ref()),
+        ];
         for (key, path) in paths {
             if let Some(p) = path.filter(|p| p.to_str().is_none()) {
                 return Err(format!(

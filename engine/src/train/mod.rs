@@ -77,6 +77,7 @@ pub mod rays;
 pub mod regnerf;
 pub mod reprojection_views;
 pub mod run;
+pub mod mono_depth;
 pub mod stereo;
 
 use std::path::{Path, PathBuf};
@@ -402,6 +403,18 @@ impl Trainer {
     /// targets agree with it ([`stereo::accuracy`]).
     pub fn stereo_accuracy(&self) -> Option<stereo::Accuracy> {
         stereo::accuracy(&self.scene, self.pipeline.stereo_targets()?)
+    }
+
+    /// With monocular depth maps (`priors.mono_depth_dir`): each training view's fit.
+    pub fn mono_fits(&self) -> &[mono_depth::MonoFit] {
+        self.pipeline.mono_fits()
+    }
+
+    /// With monocular depth maps, on a scene with ground-truth depth: how well the
+    /// monocular targets agree with it ([`stereo::accuracy_where`]).
+    pub fn mono_accuracy(&self) -> Option<stereo::Accuracy> {
+        let confidence = self.config().priors.mono_depth_confidence;
+        stereo::accuracy_where(&self.scene, self.pipeline.stereo_targets()?, |c| c == confidence)
     }
 
     /// The stereo priors' targets `[depth, confidence]` per scene view and pixel

@@ -58,6 +58,7 @@ use super::config::{BatchKind, RunConfig};
 use super::model::{BatchBuffers, Model};
 use super::profile::{Stage, StageTimes, end_recorded_stage};
 use super::rays::PixelBatch;
+use super::mono_depth::{self, MonoFit};
 use super::stereo::{self, StereoTargets, SweepSettings};
 use crate::edges::EdgeMask;
 
@@ -200,6 +201,8 @@ pub struct Pipeline {
     reprojection: Option<(Reprojection, Vec<u32>)>,
     /// The stereo depth prior when it is on, and the sweep's depth maps per scene view.
     stereo: Option<(StereoDepth, StereoTargets)>,
+    /// Each training view's fit of its monocular depth map (`priors.mono_depth_dir`).
+    mono_fits: Vec<MonoFit>,
 }
 
 impl Pipeline {
@@ -226,6 +229,7 @@ impl Pipeline {
         } else {
             None
         };
+        let mut mono_fits = Vec::new();
         let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
             let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness, horizontal: p.stereo_horizontal };
@@ -241,8 +245,16 @@ impl Pipeline {
                 }
                 StereoTargetSource::GroundTruth => stereo::ground_truth(scene),
             }
+            .and_then(|mut maps| {
+                let fits = match &p.mono_depth_dir {
+                    Some(dir) => mono_depth::merge(scene, &mut maps, dir, p.mono_depth_kind, p.mono_depth_confidence)?,
+                    None => Vec::new(),
+                };
+                Ok((maps, fits))
+            })
             .map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
-            Some((StereoDepth::new(gpu, n)?, maps))
+            mono_fits = maps.1;
+            Some((StereoDepth::new(gpu, n)?, maps.0))
         } else {
             None
         };
@@ -269,6 +281,7 @@ impl Pipeline {
             planarity: Planarity::new(gpu, n_triplets)?,
             reprojection,
             stereo,
+            mono_fits,
         })
     }
 
@@ -281,6 +294,12 @@ impl Pipeline {
         let confirmed = targets.clone().filter(|t| t[1] >= 1.0).count() as f64;
         let filled = targets.filter(|t| t[1] > 0.0 && t[1] < 1.0).count() as f64;
         Some((confirmed / all, filled / all))
+    }
+
+    /// Each training view's fit of its monocular depth map (empty without
+    /// `priors.mono_depth_dir`).
+    pub fn mono_fits(&self) -> &[MonoFit] {
+        &self.mono_fits
     }
 
     /// The sweep's targets per scene view, when a stereo prior is on.

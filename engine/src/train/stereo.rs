@@ -121,11 +121,17 @@ pub const ACCURACY_OUTLIER: f32 = 0.1;
 /// confirmed pixel has one (real photographs). Ray parameters are distances: the sweep's
 /// rays have unit directions.
 pub fn accuracy(scene: &Scene, targets: &StereoTargets) -> Option<Accuracy> {
+    accuracy_where(scene, targets, |c| c >= 1.0)
+}
+
+/// [`accuracy`] over the targets whose confidence `keep` accepts (the monocular
+/// targets' confidence, say) instead of the confirmed ones.
+pub fn accuracy_where(scene: &Scene, targets: &StereoTargets, keep: impl Fn(f32) -> bool) -> Option<Accuracy> {
     let mut errors: Vec<f64> = targets
         .iter()
         .zip(&scene.views)
         .filter_map(|(t, v)| Some((t.as_ref()?, v.depth.as_ref()?)))
-        .flat_map(|(t, d)| t.iter().zip(d).filter(|(t, d)| t[1] >= 1.0 && **d > 0.0).map(|(t, &d)| ((t[0] - d).abs() / d) as f64))
+        .flat_map(|(t, d)| t.iter().zip(d).filter(|(t, d)| t[1] > 0.0 && keep(t[1]) && **d > 0.0).map(|(t, &d)| ((t[0] - d).abs() / d) as f64))
         .collect();
     let n = errors.len();
     let outliers = errors.iter().filter(|&&e| e > ACCURACY_OUTLIER as f64).count() as f32 / n.max(1) as f32;

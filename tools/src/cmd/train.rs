@@ -695,6 +695,49 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
                     100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
                 );
             }
+            if let Some(dir) = &p.mono_depth_dir {
+                let fits = trainer.mono_fits();
+                let filled: usize = fits.iter().map(|f| f.filled).sum();
+                let pixels: usize = trainer.scene.train_views().map(|v| (v.camera.width * v.camera.height) as usize).sum();
+                eprintln!(
+                    "monocular depth ({} maps in {}): fitted to the confirmed depths, {:.1} % of the training pixels more a target at confidence {} (priors.mono_depth_confidence)",
+                    match p.mono_depth_kind {
+                        edgenerf::render::MonoDepthKind::Disparity => "disparity",
+                        edgenerf::render::MonoDepthKind::Depth => "depth",
+                    },
+                    dir.display(),
+                    100.0 * filled as f64 / pixels.max(1) as f64,
+                    p.mono_depth_confidence
+                );
+                for f in fits {
+                    let name = &trainer.scene.views[f.view].name;
+                    if f.used {
+                        eprintln!(
+                            "  {name}: scale {:.4}, shift {:.4} over {} confirmed pixels, their median error after the fit {:.2} % of the depth",
+                            f.scale,
+                            f.shift,
+                            f.pixels,
+                            100.0 * f.median_error
+                        );
+                    } else {
+                        eprintln!(
+                            "  {name}: map not used ({} confirmed pixels with a value, at least {} needed, and the fit must keep the map's order: scale {:.4})",
+                            f.pixels,
+                            edgenerf::train::mono_depth::MIN_FIT_PIXELS,
+                            f.scale
+                        );
+                    }
+                }
+                if let Some(a) = trainer.mono_accuracy() {
+                    eprintln!(
+                        "monocular targets against the scene's ground-truth depth: {} pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
+                        a.pixels,
+                        100.0 * a.median_error,
+                        100.0 * a.outliers,
+                        100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
+                    );
+                }
+            }
         }
         let dir = args.out.join("stereo");
         write_stereo_maps(&trainer, &dir).with_context(|| format!("writing the stereo targets to {}", dir.display()))?;
