@@ -543,6 +543,38 @@ run_case error "edgemaps-small/r_000.png" "edges: edge maps of the wrong size" -
 run_case error "no-such-edges" "edges: --edges DIR that does not exist" -- "$bin" train base --out run-e4 "${SPARSE[@]}" --edges ./no-such-edges
 run_case error "no-such-edges" "edges: --edges DIR that does not exist (a run without edge masks)" -- "$bin" train base --out run-e5 "${FAST[@]}" --edges ./no-such-edges
 
+# Monocular depth maps (--mono-depth DIR, priors.mono_depth_dir)
+mkdir -p mono-empty mono-bad mono-aspect mono-colour mono-half
+python3 - <<'PY'
+import glob, os, struct, zlib
+def npy(path, h, w):  # float32 (h, w), row-major: a disparity ramp
+    header = "{'descr': '<f4', 'fortran_order': False, 'shape': (%d, %d), }" % (h, w)
+    header += " " * (63 - (len(header) + 10) % 64) + "\n"
+    data = b"".join(struct.pack("<f", 0.2 + 0.01 * (x + y)) for y in range(h) for x in range(w))
+    open(path, "wb").write(b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode() + data)
+def png(path, w, h, colour):  # 8-bit grey or RGB ramp
+    ch = 3 if colour else 1
+    rows = b"".join(b"\x00" + bytes(((x + y) % 256 for x in range(w) for _ in range(ch))) for y in range(h))
+    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2 if colour else 0, 0, 0, 0)
+    open(path, "wb").write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+for f in glob.glob("base/train/*.png"):
+    b = os.path.basename(f)[:-4]
+    if b.endswith("_mask"):
+        continue
+    open(f"mono-bad/{b}.npy", "wb").write(b"garbage")
+    npy(f"mono-aspect/{b}.npy", 64, 100)
+    png(f"mono-colour/{b}.png", 128, 128, True)
+    png(f"mono-half/{b}.png", 64, 64, False)
+PY
+run_case error "no-such-maps" "mono depth: --mono-depth DIR that does not exist" -- "$bin" train base --out run-m1 "${FAST[@]}" --mono-depth ./no-such-maps
+run_case error "no monocular depth map" "mono depth: --mono-depth DIR without the views' maps" -- "$bin" train base --out run-m2 "${FAST[@]}" --mono-depth mono-empty
+run_case error "mono-bad/" "mono depth: maps that are not NumPy arrays" -- "$bin" train base --out run-m3 "${FAST[@]}" --mono-depth mono-bad
+run_case error "aspect ratios differ" "mono depth: maps of another aspect ratio than the images" -- "$bin" train base --out run-m4 "${FAST[@]}" --mono-depth mono-aspect
+run_case error "grey image" "mono depth: colour PNG maps" -- "$bin" train base --out run-m5 "${FAST[@]}" --mono-depth mono-colour
+run_case error "priors.stereo_depth" "mono depth: priors.mono_depth_dir with the stereo depth prior off" -- "$bin" train base --out run-m6 "${FAST[@]}" --set priors.mono_depth_dir=\"mono-half\"
+run_case ok "trained 1 steps" "mono depth: grey PNG maps at half the images' size (valid)" -- "$bin" train base --out run-m7 "${FAST[@]}" --mono-depth mono-half
+
 # Other commands
 run_case error "no-such-suite" "bench: an unknown suite" -- "$bin" bench no-such-suite --out bench-x
 run_case error "repeats" "bench: --repeats 0" -- "$bin" bench geometry --quick --repeats 0 --out bench-r0 --report-only

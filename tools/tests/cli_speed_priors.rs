@@ -179,11 +179,15 @@ fn monocular_depth_maps_are_fitted_to_the_sweep_and_reported() {
             .collect();
         edgenerf::data::npy::write_npy_f64(&maps.join(format!("{}.npy", view.name)), &[h as usize, w as usize], &disparity).unwrap();
     }
+    // `--mono-depth` on an object preset, whose stereo depth prior is off: the flag
+    // turns it on, since the maps are fitted to its sweep.
     let dir = out.path().join("run");
-    let mono = format!("priors.mono_depth_dir=\"{}\"", maps.display());
-    let o = train_creases_3v(&dir, 2, &["--set", "priors.stereo_depth=0.1", "--set", &mono]);
+    let o = train_creases_3v(&dir, 2, &["--mono-depth", maps.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
+    assert!(t.contains("priors.stereo_depth = 0.1"), "{t}");
+    let cfg = std::fs::read_to_string(dir.join("config.json")).unwrap();
+    assert!(cfg.contains(&format!("\"mono_depth_dir\": \"{}\"", maps.display())), "{cfg}");
     let line = |start: &str| t.lines().find(|l| l.starts_with(start)).unwrap_or_else(|| panic!("no '{start}' line in:\n{t}")).to_string();
     let filled: f64 = line("monocular depth (disparity maps").split(" % of the training pixels").next().unwrap().rsplit(' ').next().unwrap().parse().unwrap();
     assert!(filled > 10.0, "the maps fill the pixels the sweep left: {filled} %\n{t}");
@@ -193,7 +197,12 @@ fn monocular_depth_maps_are_fitted_to_the_sweep_and_reported() {
     // Every view's map must be there.
     let first = &scene.views[scene.split.train[0]].name;
     std::fs::remove_file(maps.join(format!("{first}.npy"))).unwrap();
+    let mono = format!("priors.mono_depth_dir=\"{}\"", maps.display());
     let o = train_creases_3v(&out.path().join("missing"), 1, &["--set", "priors.stereo_depth=0.1", "--set", &mono]);
     let t = text(&o);
     assert!(!o.status.success() && t.contains(&format!("no monocular depth map for training view {first}")), "{t}");
+    // So must the folder.
+    let o = train_creases_3v(&out.path().join("nodir"), 1, &["--mono-depth", out.path().join("absent").to_str().unwrap()]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("--mono-depth") && t.contains("no such directory"), "{t}");
 }

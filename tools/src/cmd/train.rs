@@ -62,6 +62,13 @@ pub struct Args {
     /// Edge maps for the regularizers' masks (edges.* in the config).
     #[command(flatten)]
     edges: crate::cmd::edges::EdgeArgs,
+    /// A folder of monocular depth maps, one per training image (`<image stem>.npy` or a
+    /// grey `.png`, relative disparity as Depth Anything or MiDaS write it): each is
+    /// fitted to the stereo sweep and gives the pixels the sweep left a depth target
+    /// (priors.mono_depth_dir; turns the stereo depth prior on at 0.1 where the config
+    /// has it off; see docs/guide/configuration.md).
+    #[arg(long, value_name = "DIR")]
+    mono_depth: Option<PathBuf>,
     /// Config file (TOML or JSON) with any subset of the run configuration. Without it,
     /// a sparse-view run (--views) of the grid uses the shipped preset for the scene's
     /// format (LLFF tools/configs/sparse-llff.toml, DTU sparse-dtu.toml, Blender
@@ -81,7 +88,7 @@ pub struct Args {
     /// change the run are refused.
     #[arg(long, conflicts_with_all = [
         "config", "no_preset", "overrides", "backend", "views", "llff_factor", "no_depth_reg", "no_normal_reg", "reg_variant",
-        "lambda_depth", "lambda_normal", "regnerf_depth_tv", "anneal_sample_space", "edges",
+        "lambda_depth", "lambda_normal", "regnerf_depth_tv", "anneal_sample_space", "edges", "mono_depth",
         "edge_polarity", "tau_e", "no_dilate", "canny_sigma", "canny_low", "canny_high", "overwrite",
     ])]
     resume: bool,
@@ -93,6 +100,10 @@ pub struct Args {
     #[arg(long)]
     no_eval: bool,
 }
+
+/// The stereo depth prior's weight `--mono-depth` turns it on at where a config has it
+/// off (the inside-out presets' and DTU's weight).
+const MONO_STEREO_DEPTH: f32 = 0.1;
 
 fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     // The backend first: its defaults (the MLP's RegNeRF optimizer) sit under the file.
@@ -143,6 +154,19 @@ fn build_config(args: &Args) -> anyhow::Result<RunConfig> {
     }
     if args.anneal_sample_space {
         config.regnerf.anneal = true;
+    }
+    if let Some(dir) = &args.mono_depth {
+        if !dir.is_dir() {
+            bail!("--mono-depth {}: no such directory; write one monocular depth map per training image there (<image stem>.npy or .png)", dir.display());
+        }
+        // Absolute, as the scene's path: config.json names the maps wherever it is read.
+        config.priors.mono_depth_dir = Some(std::path::absolute(dir)?);
+        if config.priors.stereo_depth <= 0.0 {
+            config.priors.stereo_depth = MONO_STEREO_DEPTH;
+            eprintln!(
+                "--mono-depth: the maps are fitted to the stereo sweep's depths, and this configuration has the stereo depth prior off: priors.stereo_depth = {MONO_STEREO_DEPTH} (the inside-out presets' weight)"
+            );
+        }
     }
     // Before any --set: `set` goes through JSON, which cannot hold a non-UTF-8 path
     // (the error blamed the --set instead of the path) nor a NaN (`--lambda-normal nan`
