@@ -574,6 +574,8 @@ run_case error "aspect ratios differ" "mono depth: maps of another aspect ratio 
 run_case error "grey image" "mono depth: colour PNG maps" -- "$bin" train base --out run-m5 "${FAST[@]}" --mono-depth mono-colour
 run_case error "priors.stereo_depth" "mono depth: priors.mono_depth_dir with the stereo depth prior off" -- "$bin" train base --out run-m6 "${FAST[@]}" --set priors.mono_depth_dir=\"mono-half\"
 run_case ok "trained 1 steps" "mono depth: grey PNG maps at half the images' size (valid)" -- "$bin" train base --out run-m7 "${FAST[@]}" --mono-depth mono-half
+llff l-mono
+run_case error "NDC" "mono depth: --mono-depth on a forward-facing LLFF scene (NDC rays)" -- "$bin" train l-mono --out run-m8 --views 2 --iters 1 --no-eval --mono-depth mono-half
 
 # Other commands
 run_case error "no-such-suite" "bench: an unknown suite" -- "$bin" bench no-such-suite --out bench-x
