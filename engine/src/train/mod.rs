@@ -68,6 +68,7 @@ pub mod config;
 pub mod evaluate;
 pub mod export;
 pub mod model;
+pub mod mono_depth;
 pub mod output;
 pub mod pipeline;
 pub mod profile;
@@ -77,7 +78,6 @@ pub mod rays;
 pub mod regnerf;
 pub mod reprojection_views;
 pub mod run;
-pub mod mono_depth;
 pub mod stereo;
 
 use std::path::{Path, PathBuf};

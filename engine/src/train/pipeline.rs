@@ -56,9 +56,9 @@ use crate::layout::{FieldGrads, GpuRay, GpuSample, LiveSamples, RayAux, RayOutpu
 use super::TrainError;
 use super::config::{BatchKind, RunConfig};
 use super::model::{BatchBuffers, Model};
+use super::mono_depth::{self, MonoFit};
 use super::profile::{Stage, StageTimes, end_recorded_stage};
 use super::rays::PixelBatch;
-use super::mono_depth::{self, MonoFit};
 use super::stereo::{self, StereoTargets, SweepSettings};
 use crate::edges::EdgeMask;
 
