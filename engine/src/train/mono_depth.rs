@@ -58,6 +58,16 @@ pub struct MonoFit {
     pub used: bool,
 }
 
+/// Refuses a scene whose maps cannot be fitted: the sweep they are fitted to needs
+/// world-space rays (not LLFF's NDC). Said in the maps' terms, before the sweep's own
+/// refusal, which would ask for the stereo prior off.
+pub fn check_scene(scene: &Scene) -> Result<(), String> {
+    if scene.ndc.is_some() {
+        return Err("monocular depth maps (--mono-depth, priors.mono_depth_dir) are fitted to the stereo sweep's depths, and the sweep needs world-space rays; this scene's rays are NDC (a forward-facing LLFF capture), so the maps cannot be used on it".into());
+    }
+    Ok(())
+}
+
 /// The file of view `view`'s map in `dir`, with what to do where there is none.
 pub fn find_map(scene: &Scene, view: usize, dir: &Path) -> Result<PathBuf, String> {
     if !dir.is_dir() {
@@ -167,14 +177,12 @@ fn robust_affine(pairs: &[(f64, f64)]) -> Option<(f64, f64)> {
 /// Fits view `view`'s map `values` (at the view's size) to its targets and writes the
 /// monocular targets into the pixels without a confirmed depth.
 fn merge_view(scene: &Scene, view: usize, values: &[f32], kind: MonoDepthKind, confidence: f32, targets: &mut [[f32; 2]]) -> MonoFit {
-    let cam = &scene.views[view].camera;
-    let (w, h) = (cam.width, cam.height);
     // Per pixel: the ray's z-scale and its span in the box (`None`: it misses the box).
-    let rays: Vec<(f32, Option<(f32, f32)>)> = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            let ray = scene.ray(view, x, y);
-            let g = to_gpu_ray(scene, &ray);
+    let rays: Vec<(f32, Option<(f32, f32)>)> = scene
+        .image_rays(view)
+        .iter()
+        .map(|ray| {
+            let g = to_gpu_ray(scene, ray);
             (ray.z_scale, (g.t_max > g.t_min && g.t_min > 0.0).then_some((g.t_min, g.t_max)))
         })
         .collect();

@@ -233,7 +233,11 @@ impl Pipeline {
         let stereo = if config.priors.stereo_on() {
             let p = &config.priors;
             let settings = SweepSettings { planes: p.stereo_planes, window: p.stereo_window, consistency: p.stereo_consistency, fill: p.stereo_fill, uniqueness: p.stereo_uniqueness, horizontal: p.stereo_horizontal };
-            let maps = match p.stereo_targets {
+            let config_error = |message| TrainError::Config { source_name: "config".into(), message };
+            if p.mono_depth_dir.is_some() {
+                mono_depth::check_scene(scene).map_err(config_error)?;
+            }
+            let mut maps = match p.stereo_targets {
                 StereoTargetSource::Sweep => {
                     // The fill reads the edge masks; a run whose regularizers do not read
                     // them gets them here.
@@ -245,16 +249,11 @@ impl Pipeline {
                 }
                 StereoTargetSource::GroundTruth => stereo::ground_truth(scene),
             }
-            .and_then(|mut maps| {
-                let fits = match &p.mono_depth_dir {
-                    Some(dir) => mono_depth::merge(scene, &mut maps, dir, p.mono_depth_kind, p.mono_depth_confidence)?,
-                    None => Vec::new(),
-                };
-                Ok((maps, fits))
-            })
-            .map_err(|message| TrainError::Config { source_name: "config".into(), message })?;
-            mono_fits = maps.1;
-            Some((StereoDepth::new(gpu, n)?, maps.0))
+            .map_err(config_error)?;
+            if let Some(dir) = &p.mono_depth_dir {
+                mono_fits = mono_depth::merge(scene, &mut maps, dir, p.mono_depth_kind, p.mono_depth_confidence).map_err(config_error)?;
+            }
+            Some((StereoDepth::new(gpu, n)?, maps))
         } else {
             None
         };

@@ -228,10 +228,8 @@ fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow
     if config.reg.reprojection_on() && config.train.batch == edgenerf::train::BatchKind::Patches {
         edgenerf::train::pipeline::check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
     }
-    if config.priors.mono_depth_dir.is_some() && scene.ndc.is_some() {
-        bail!(
-            "monocular depth maps (--mono-depth, priors.mono_depth_dir) are fitted to the stereo sweep's depths, and the sweep needs world-space rays; this scene's rays are NDC (a forward-facing LLFF capture), so the maps cannot be used on it"
-        );
+    if config.priors.mono_depth_dir.is_some() {
+        edgenerf::train::mono_depth::check_scene(scene).map_err(anyhow::Error::msg)?;
     }
     if config.priors.stereo_on() {
         edgenerf::train::stereo::check_scene(scene).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
