@@ -713,14 +713,18 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
                 p.stereo_depth,
                 p.stereo_consistency
             );
-            if let Some(a) = trainer.stereo_accuracy() {
+            // Targets against the scene's ground-truth depth (synthetic scenes).
+            let accuracy = |what: &str, pixels: &str, a: edgenerf::train::stereo::Accuracy| {
                 eprintln!(
-                    "stereo depth prior against the scene's ground-truth depth: {} confirmed pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
+                    "{what} against the scene's ground-truth depth: {} {pixels}, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
                     a.pixels,
                     100.0 * a.median_error,
                     100.0 * a.outliers,
                     100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
-                );
+                )
+            };
+            if let Some(a) = trainer.stereo_accuracy() {
+                accuracy("stereo depth prior", "confirmed pixels", a);
             }
             if let Some(dir) = &p.mono_depth_dir {
                 let fits = trainer.mono_fits();
@@ -756,13 +760,7 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
                     }
                 }
                 if let Some(a) = trainer.mono_accuracy() {
-                    eprintln!(
-                        "monocular targets against the scene's ground-truth depth: {} pixels, median error {:.2} % of the depth, {:.1} % of them off by more than {:.0} %",
-                        a.pixels,
-                        100.0 * a.median_error,
-                        100.0 * a.outliers,
-                        100.0 * edgenerf::train::stereo::ACCURACY_OUTLIER
-                    );
+                    accuracy("monocular targets", "pixels", a);
                 }
             }
         }
