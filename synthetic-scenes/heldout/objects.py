@@ -29,13 +29,14 @@ from scenes import Shape, SceneSpec
 
 def build_workshop():
     plate = g.cylinder(1.2, -0.06, 0.0, 96)
-    s = [Shape("plate", plate, texture=None, color=(0.5, 0.48, 0.44))]
+    s = [Shape("plate", plate, color=(0.5, 0.48, 0.44))]
     # a tool chest of three drawers, the middle one pulled out
     chest = [g.box((-0.75, -0.2, 0.0), (-0.25, 0.15, 0.12)), g.box((-0.75, -0.2, 0.24), (-0.25, 0.15, 0.36))]
     chest += [g.box((-0.75, -0.28, 0.12), (-0.25, 0.15, 0.24))]
     s.append(Shape("chest", g.merge(chest), color=(0.72, 0.16, 0.14)))
-    s.append(Shape("handles", g.merge([g.box((-0.58, -0.31, y), (-0.42, -0.28, y + 0.025)) for y in (0.17,)]
-                                      + [g.box((-0.58, -0.23, y), (-0.42, -0.2, y + 0.025)) for y in (0.05, 0.29)]),
+    handles = [g.box((-0.58, -0.31, 0.17), (-0.42, -0.28, 0.17 + 0.025))]  # the pulled-out drawer's
+    handles += [g.box((-0.58, -0.23, y), (-0.42, -0.2, y + 0.025)) for y in (0.05, 0.29)]
+    s.append(Shape("handles", g.merge(handles),
                    color=(0.8, 0.8, 0.78)))
     # a barrel with hoops
     barrel = g.lathe([(0.0, 0.0), (0.2, 0.0), (0.24, 0.22), (0.2, 0.44), (0.0, 0.44)], n=64, samples=6)
