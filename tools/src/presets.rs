@@ -157,14 +157,19 @@ mod tests {
     }
 
     /// The LLFF preset's `[[with_views]]`: up to 13 views keep the 3-view batches of
-    /// 2x2 patches, colour up to band 3 and 2000 steps; from 14 views three quarters
-    /// of each batch are single pixels, the colour stops at band 1, the learning
-    /// rate is doubled and the run is 6000 steps with the decay stretched to them.
+    /// 2x2 patches, colour up to band 3, 2000 steps and the stereo depth prior; from 14
+    /// views three quarters of each batch are single pixels, the colour stops at band 1,
+    /// the learning rate is doubled, the run is 6000 steps with the decay stretched to
+    /// them, and there is no stereo prior.
     #[test]
     fn llff_preset_follows_the_view_count() {
-        for (views, share, sh, iters, lr) in [(3, 1.0, 3, 2000, 0.01), (13, 1.0, 3, 2000, 0.01), (14, 0.25, 1, 6000, 0.02)] {
+        for (views, share, sh, iters, lr, stereo) in [(3, 1.0, 3, 2000, 0.01, 0.1), (13, 1.0, 3, 2000, 0.01, 0.1), (14, 0.25, 1, 6000, 0.02, 0.0)] {
             let c = preset_for_views(SPARSE_LLFF, views);
             assert_eq!((c.train.patch_share, c.field.sh_degree, c.train.iters), (share, sh, iters), "{views} views");
+            // The stereo depth prior along the NDC rays below 14 views, none of the
+            // world-space-only stereo terms.
+            let p = &c.priors;
+            assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_horizontal), (stereo, 0.0, false), "{views} views");
             let (lr_start, lr_end) = (c.optim.schedule.lr(100), c.optim.schedule.lr(iters));
             assert!((lr_start - lr).abs() < 1e-6, "{views} views: lr {lr_start}");
             // The preset's decay (0.7 at step 1200 and every 200 after, written for 2000

@@ -326,18 +326,28 @@ fn llff_factor_flag_reads_another_image_folder() {
     assert!(!o.status.success() && text(&o).contains("--llff-factor"), "{}", text(&o));
 }
 
-/// The stereo depth prior's sweep needs world-space rays: on an LLFF capture (NDC rays)
-/// `train` says so before it computes edge maps.
+/// The stereo depth prior sweeps an LLFF capture along its NDC rays; the planes across
+/// up are world-space planes it does not have, which `train` says before it computes
+/// edge maps.
 #[test]
-fn the_stereo_prior_is_refused_on_ndc_scenes_before_the_edge_maps() {
+fn the_stereo_prior_runs_on_ndc_scenes_without_the_planes_across_up() {
     let dir = tiny_llff(9, |x, y| image::Rgb([(x * 15) as u8, (y * 20) as u8, 90]));
     let out = tempfile::tempdir().unwrap();
     let run = out.path().join("run");
     let scene = dir.path().to_str().unwrap();
-    let o = edgenerf(&["train", scene, "--llff-factor", "4", "--iters", "2", "--no-eval", "--out", run.to_str().unwrap(), "--set", "priors.stereo_depth=0.03"]);
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", scene, "--llff-factor", "4", "--iters", "2", "--no-eval", "--out", run.to_str().unwrap(), "--overwrite", "--set", "priors.stereo_depth=0.03"];
+        args.extend_from_slice(extra);
+        edgenerf(&args)
+    };
+    let o = train(&["--set", "priors.stereo_horizontal=true"]);
     let t = text(&o);
-    assert!(!o.status.success() && t.contains("NDC") && t.contains("priors.stereo_depth = 0"), "{t}");
+    assert!(!o.status.success() && t.contains("NDC") && t.contains("priors.stereo_horizontal = false"), "{t}");
     assert!(!run.join("edges").exists(), "refused before the edge maps");
+    let o = train(&[]);
+    let t = text(&o);
+    assert!(o.status.success() && t.contains("stereo depth prior: a sweep of"), "{t}");
+    assert!(run.join("stereo").is_dir(), "the NDC sweep's targets are written beside the run");
 }
 
 /// With a stereo prior on, `train` says how many pixels the sweep confirmed and filled

@@ -110,8 +110,8 @@ pub struct PriorConfig {
     /// Weight of the stereo depth prior (0: off): each photometric ray's depth given
     /// termination is pulled toward the depth a plane sweep over the training views found
     /// at its pixel, where another view confirms it (`crate::train::stereo`,
-    /// `crate::loss::stereo_depth`). Needs two or more training views and world-space
-    /// rays (not LLFF's NDC).
+    /// `crate::loss::stereo_depth`). Needs two or more training views; on LLFF's NDC
+    /// rays the sweep runs along them and its targets are NDC ray parameters.
     pub stereo_depth: f32,
     /// Depth planes of the sweep (uniform in inverse depth over the box).
     pub stereo_planes: u32,

@@ -58,12 +58,12 @@ pub struct MonoFit {
     pub used: bool,
 }
 
-/// Refuses a scene whose maps cannot be fitted: the sweep they are fitted to needs
-/// world-space rays (not LLFF's NDC). Said in the maps' terms, before the sweep's own
-/// refusal, which would ask for the stereo prior off.
+/// Refuses a scene whose maps cannot be fitted: they are fitted to the sweep's depths as
+/// distances along world-space rays, and on LLFF's NDC rays the sweep's targets are NDC
+/// ray parameters (inverse depth), which a monocular map's scale and shift do not fit.
 pub fn check_scene(scene: &Scene) -> Result<(), String> {
     if scene.ndc.is_some() {
-        return Err("monocular depth maps (--mono-depth, priors.mono_depth_dir) are fitted to the stereo sweep's depths, and the sweep needs world-space rays; this scene's rays are NDC (a forward-facing LLFF capture), so the maps cannot be used on it".into());
+        return Err("monocular depth maps (--mono-depth, priors.mono_depth_dir) are fitted to the stereo sweep's depths along world-space rays; this scene's rays are NDC (a forward-facing LLFF capture), where the sweep gives NDC ray parameters, so the maps cannot be used on it: train without --mono-depth".into());
     }
     Ok(())
 }

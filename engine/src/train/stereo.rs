@@ -35,9 +35,17 @@
 //! with the weight's share of confirmed pixels as the target's confidence (a confirmed
 //! depth has confidence 1). Edge pixels are neither filled nor read by a fill.
 //!
+//! Forward-facing scenes (NDC rays, an LLFF capture) are swept along their NDC rays: the
+//! ray parameter `t` there is linear in inverse depth (`depth = near / (1 - t)`), so the
+//! planes are uniform in `t` over `[0, NDC_SWEEP_FAR]`, every point is mapped back to world
+//! space before it is projected into the other views, the left-right check's tolerance is
+//! a share of the point's distance from the camera, and the targets are NDC ray
+//! parameters, the depth the trainer renders there. The planes across up and the
+//! ground-truth targets stay world-space only.
+//!
 //! Invariants: a target is `[0, 0]` (none) or `[t, c]` with `t` inside its ray's span in
-//! the box and `c` in `(0, 1]` (1 exactly for a confirmed depth); NDC scenes are refused
-//! (their rays do not meet in world space as the sweep assumes).
+//! the box (in NDC: `[0, NDC_SWEEP_FAR]`) and `c` in `(0, 1]` (1 exactly for a confirmed
+//! depth).
 
 use glam::{Mat4, Vec3};
 
@@ -82,7 +90,9 @@ pub fn up_direction(scene: &Scene) -> Option<Vec3> {
 /// gets its ray distance, confirmed (confidence 1); a training view without depth is
 /// refused. The sweep's rays have unit directions, so ray parameters are distances.
 pub fn ground_truth(scene: &Scene) -> Result<StereoTargets, String> {
-    check_scene(scene)?;
+    if scene.ndc.is_some() {
+        return Err("priors.stereo_targets = \"ground_truth\" reads ray distances; this scene's rays are NDC (a forward-facing LLFF capture): use \"sweep\"".into());
+    }
     (0..scene.views.len())
         .map(|v| {
             if !scene.split.train.contains(&v) {
@@ -127,6 +137,10 @@ pub fn accuracy(scene: &Scene, targets: &StereoTargets) -> Option<Accuracy> {
 /// [`accuracy`] over the targets whose confidence `keep` accepts (the monocular
 /// targets' confidence, say) instead of the confirmed ones.
 pub fn accuracy_where(scene: &Scene, targets: &StereoTargets, keep: impl Fn(f32) -> bool) -> Option<Accuracy> {
+    // NDC targets are ray parameters, not distances.
+    if scene.ndc.is_some() {
+        return None;
+    }
     let mut errors: Vec<f64> = targets
         .iter()
         .zip(&scene.views)
@@ -153,19 +167,42 @@ enum Family {
 /// view, `None` otherwise.
 pub type StereoTargets = Vec<Option<Vec<[f32; 2]>>>;
 
-/// Refuses a scene the sweep cannot run on (NDC rays), with what to do; from the
-/// cameras alone, so `train` can say so before it spends time on edge maps.
-pub fn check_scene(scene: &Scene) -> Result<(), String> {
-    if scene.ndc.is_some() {
-        return Err("priors.stereo_depth sweeps world-space rays; this scene's rays are NDC (a forward-facing LLFF capture): set priors.stereo_depth = 0".into());
+/// The farthest NDC ray parameter the sweep tries on a forward-facing scene: 50 times
+/// the near plane's depth (`t = 1` is infinitely far).
+pub const NDC_SWEEP_FAR: f32 = 0.98;
+
+/// Refuses a sweep the scene cannot take, with what to do; from the cameras and the
+/// settings alone, so `train` can say so before it spends time on edge maps. On NDC rays
+/// (a forward-facing LLFF capture) the planes across up are world-space planes the NDC
+/// sweep does not have.
+pub fn check_scene(scene: &Scene, horizontal: bool) -> Result<(), String> {
+    if scene.ndc.is_some() && horizontal {
+        return Err("priors.stereo_horizontal sweeps world-space planes; this scene's rays are NDC (a forward-facing LLFF capture): set priors.stereo_horizontal = false (the depth planes along the rays still run)".into());
     }
     Ok(())
+}
+
+/// The point at ray parameter `t` of the ray `origin + t dir` in world space: the ray's
+/// own point, or on an NDC scene that point mapped back from NDC.
+fn world_point(scene: &Scene, origin: Vec3, dir: Vec3, t: f32) -> Vec3 {
+    let q = origin + t * dir;
+    match &scene.ndc {
+        Some(ndc) => ndc.ndc_to_world(q),
+        None => q,
+    }
+}
+
+/// The sweep's measure of where along a ray a depth lies, linear in the plane spacing:
+/// inverse depth in world space, the ray parameter itself in NDC (linear in inverse depth
+/// there).
+fn disparity(scene: &Scene, t: f32) -> f32 {
+    if scene.ndc.is_some() { t } else { 1.0 / t }
 }
 
 /// The sweep of every training view (see the module doc); `masks` are the training
 /// views' edge masks in `scene.split.train` order, which the fill needs.
 pub fn sweep(scene: &Scene, settings: SweepSettings, masks: Option<&[EdgeMask]>) -> Result<StereoTargets, String> {
-    check_scene(scene)?;
+    check_scene(scene, settings.horizontal)?;
     let train = &scene.split.train;
     if settings.fill > 0 && masks.is_none_or(|m| m.len() != train.len()) {
         return Err("priors.stereo_fill needs the training views' edge masks".into());
@@ -283,7 +320,10 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
             let ray = to_gpu_ray(scene, &scene.ray(s, x, y));
             origin.push(Vec3::from(ray.origin));
             dir.push(Vec3::from(ray.dir));
-            span.push((ray.t_max > ray.t_min && ray.t_min > 0.0).then_some((ray.t_min, ray.t_max)));
+            span.push(match scene.ndc {
+                Some(_) => Some((ray.t_min.max(0.0), ray.t_max.min(NDC_SWEEP_FAR))),
+                None => (ray.t_max > ray.t_min && ray.t_min > 0.0).then_some((ray.t_min, ray.t_max)),
+            });
         }
     }
     let (near, far) = span.iter().flatten().fold((f32::INFINITY, 0.0f32), |(a, b), &(lo, hi)| (a.min(lo), b.max(hi)));
@@ -309,6 +349,8 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
     let plane_depth = |family: Family, k: u32, p: usize| -> f32 {
         let f = k as f32 / (planes - 1) as f32;
         match family {
+            // Uniform in inverse depth: in NDC the ray parameter is.
+            Family::Ray if scene.ndc.is_some() => near + f * (far - near),
             Family::Ray => 1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near)),
             Family::Across { normal, lo, hi } => {
                 let along = normal.dot(dir[p]);
@@ -331,7 +373,7 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
             for p in 0..n {
                 t[p] = plane_depth(family, k, p);
                 let own = own[p];
-                let x = origin[p] + t[p] * dir[p];
+                let x = world_point(scene, origin[p], dir[p], t[p]);
                 cost[p] = others
                     .iter()
                     .filter_map(|&j| {
@@ -358,7 +400,7 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
         // The least cost of the planes whose depth lies more than UNIQUE_APART of the
         // first family's plane spacings (in inverse depth) from the winner's: for the
         // first family alone, the planes more than UNIQUE_APART planes away.
-        let apart = (UNIQUE_APART as f32 + 0.5) * (1.0 / near - 1.0 / far) / (planes - 1) as f32;
+        let apart = (UNIQUE_APART as f32 + 0.5) * (disparity(scene, near) - disparity(scene, far)).abs() / (planes - 1) as f32;
         for p in 0..n {
             if depth[p] <= 0.0 {
                 continue;
@@ -367,7 +409,7 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
             for (i, &family) in families.iter().enumerate() {
                 for k in 0..planes {
                     let c = volume[(i * planes as usize + k as usize) * n + p];
-                    if c < second && (1.0 / plane_depth(family, k, p) - 1.0 / depth[p]).abs() > apart {
+                    if c < second && (disparity(scene, plane_depth(family, k, p)) - disparity(scene, depth[p])).abs() > apart {
                         second = c;
                     }
                 }
@@ -388,7 +430,10 @@ fn consistent(scene: &Scene, s: usize, win: &Winners, all: &[Option<Winners>], w
             if t <= 0.0 {
                 return 0.0;
             }
-            let x = win.origin[p] + t * win.dir[p];
+            let x = world_point(scene, win.origin[p], win.dir[p], t);
+            // The point's distance from the camera: `t` itself on unit world-space rays
+            // from the camera centre.
+            let distance = if scene.ndc.is_some() { (x - scene.views[s].camera.origin()).length() } else { t };
             let confirmed = scene.split.train.iter().filter(|&&j| j != s).any(|&j| {
                 let (Some(other), cam) = (all[j].as_ref(), &scene.views[j].camera) else { return false };
                 let Some((px, _)) = cam.project_with(&w2c[j], x) else { return false };
@@ -397,7 +442,7 @@ fn consistent(scene: &Scene, s: usize, win: &Winners, all: &[Option<Winners>], w
                 }
                 let q = (px.y as u32).min(cam.height - 1) * cam.width + (px.x as u32).min(cam.width - 1);
                 let tj = other.depth[q as usize];
-                tj > 0.0 && (other.origin[q as usize] + tj * other.dir[q as usize] - x).length() <= tolerance * t
+                tj > 0.0 && (world_point(scene, other.origin[q as usize], other.dir[q as usize], tj) - x).length() <= tolerance * distance
             });
             if confirmed { t } else { 0.0 }
         })
@@ -508,12 +553,51 @@ mod tests {
         let n = cam.width * cam.height;
         assert!(kept > n / 3, "most of a textured floor seen by three views is confirmed: {kept} of {n}");
         assert!(close as f32 > 0.95 * kept as f32, "confirmed depths lie on the floor: {close} of {kept}");
-        // A view alone has nothing to compare with; NDC scenes are refused.
+        // A view alone has nothing to compare with.
         let alone = Scene { split: Split { train: vec![0], test: vec![1, 2] }, ..scene.clone() };
         assert!(sweep(&alone, settings, None).unwrap().iter().all(Option::is_none));
         assert!(sweep(&scene, SweepSettings { fill: 4, ..settings }, None).unwrap_err().contains("edge masks"));
-        let ndc = Scene { ndc: Some(crate::data::NdcParams { focal_x: 50.0, focal_y: 50.0, width: 48.0, height: 40.0, near: 1.0 }), ..scene };
-        assert!(sweep(&ndc, settings, None).unwrap_err().contains("NDC"));
+    }
+
+    /// The floor scene as a forward-facing LLFF capture: the cameras moved to `z = 0`
+    /// (the floor 2 m in front of them at `z = -2`, the images unchanged) and NDC rays
+    /// with the near plane at 1.
+    fn ndc_floor_scene() -> Scene {
+        let floor = floor_scene();
+        let views = floor
+            .views
+            .into_iter()
+            .map(|mut v| {
+                v.camera.c2w = Mat4::from_translation(-2.0 * Vec3::Z) * v.camera.c2w;
+                v
+            })
+            .collect::<Vec<_>>();
+        let c = views[0].camera;
+        let ndc = crate::data::NdcParams { focal_x: c.fx, focal_y: c.fy, width: c.width as f32, height: c.height as f32, near: 1.0 };
+        Scene { views, near: 0.0, far: 1.0, ndc: Some(ndc), aabb: [Vec3::new(-1.5, -1.5, -1.0), Vec3::new(1.5, 1.5, 1.0)], ..floor }
+    }
+
+    #[test]
+    fn the_sweep_runs_along_ndc_rays_and_gives_ndc_ray_parameters() {
+        let scene = ndc_floor_scene();
+        let settings = SweepSettings { planes: 96, window: 1, consistency: 0.02, fill: 0, uniqueness: 1.0, horizontal: false };
+        let targets = sweep(&scene, settings, None).unwrap();
+        // The floor lies 2 m along -z from every camera: NDC t = 1 - near / 2 = 0.5 on
+        // every pixel (NDC depth depends on z alone).
+        let ndc = scene.ndc.unwrap();
+        let depth = targets[0].as_ref().unwrap();
+        let kept: Vec<f32> = depth.iter().filter(|d| d[0] > 0.0).map(|d| d[0]).collect();
+        let n = depth.len();
+        assert!(kept.len() > n / 3, "most of a textured floor seen by three views is confirmed: {} of {n}", kept.len());
+        let close = kept.iter().filter(|&&t| (ndc.ndc_t_to_world_depth(t) - 2.0).abs() < 0.03 * 2.0).count();
+        assert!(close as f32 > 0.95 * kept.len() as f32, "confirmed NDC depths lie on the floor: {close} of {}", kept.len());
+        assert!(kept.iter().all(|&t| (0.0..=NDC_SWEEP_FAR).contains(&t)), "targets are NDC ray parameters in the sweep's span");
+        // No accuracy against ground truth (the targets are not distances) and no
+        // world-space planes or ground-truth targets on NDC rays, each with what to do.
+        assert!(accuracy(&scene, &targets).is_none());
+        let across = sweep(&scene, SweepSettings { horizontal: true, ..settings }, None).unwrap_err();
+        assert!(across.contains("priors.stereo_horizontal = false"), "{across}");
+        assert!(ground_truth(&scene).unwrap_err().contains("\"sweep\""));
     }
 
     #[test]

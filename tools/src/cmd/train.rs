@@ -222,8 +222,8 @@ fn default_preset(args: &Args, backend: Option<Backend>) -> anyhow::Result<Optio
 
 /// Refuses, from the image sizes and cameras and before the edge detection, a scene too
 /// large for the reprojection term's one storage binding (a 6000x6000 capture was
-/// refused only after 48 s of edge detection) or one the stereo depth prior's sweep
-/// cannot run on (NDC rays).
+/// refused only after 48 s of edge detection) or a stereo sweep it cannot take (the
+/// planes across up on NDC rays).
 fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow::Result<()> {
     if config.reg.reprojection_on() && config.train.batch == edgenerf::train::BatchKind::Patches {
         edgenerf::train::pipeline::check_reprojection_fits(scene, gpu.limits().max_storage_buffer_binding_size)?;
@@ -232,7 +232,7 @@ fn check_terms_fit_scene(gpu: &Gpu, config: &RunConfig, scene: &Scene) -> anyhow
         edgenerf::train::mono_depth::check_scene(scene).map_err(anyhow::Error::msg)?;
     }
     if config.priors.stereo_on() {
-        edgenerf::train::stereo::check_scene(scene).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
+        edgenerf::train::stereo::check_scene(scene, config.priors.stereo_horizontal).map_err(|m| anyhow::anyhow!("configuration: {m}"))?;
     }
     Ok(())
 }
