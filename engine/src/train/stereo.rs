@@ -192,9 +192,9 @@ fn world_point(scene: &Scene, origin: Vec3, dir: Vec3, t: f32) -> Vec3 {
     }
 }
 
-/// The sweep's measure of where along a ray a depth lies, linear in the plane spacing:
-/// inverse depth in world space, the ray parameter itself in NDC (linear in inverse depth
-/// there).
+/// The sweep's measure of where along a ray a depth lies, in which the first family's
+/// planes are uniform: inverse depth in world space, the ray parameter itself in NDC
+/// (linear in inverse depth there). Its own inverse in both cases.
 fn disparity(scene: &Scene, t: f32) -> f32 {
     if scene.ndc.is_some() { t } else { 1.0 / t }
 }
@@ -349,9 +349,10 @@ fn winners(scene: &Scene, s: usize, w2c: &[Mat4], up: Option<Vec3>, settings: Sw
     let plane_depth = |family: Family, k: u32, p: usize| -> f32 {
         let f = k as f32 / (planes - 1) as f32;
         match family {
-            // Uniform in inverse depth: in NDC the ray parameter is.
-            Family::Ray if scene.ndc.is_some() => near + f * (far - near),
-            Family::Ray => 1.0 / (1.0 / near + f * (1.0 / far - 1.0 / near)),
+            Family::Ray => {
+                let (a, b) = (disparity(scene, near), disparity(scene, far));
+                disparity(scene, a + f * (b - a))
+            }
             Family::Across { normal, lo, hi } => {
                 let along = normal.dot(dir[p]);
                 let t = (lo + (hi - lo) * f - normal.dot(origin[p])) / along;
