@@ -24,6 +24,15 @@ fn fern_split_sizes_and_intrinsics() {
     assert_eq!(scene.split.train, vec![1, 10, 19]);
     assert_eq!(scene.split.test, vec![0, 8, 16]);
     assert_eq!((scene.near, scene.far), (0.0, 1.0));
+    // With the far bound, rays end at 1.1 times the farthest bound, rescaled as the
+    // poses are (the nearest bound at 1 / 0.75), as an NDC ray parameter `1 - near / depth`.
+    let bounds = edgenerf::data::npy::read_npy(&scene.root.join("poses_bounds.npy")).unwrap();
+    let rows = (0..bounds.shape[0]).map(|i| bounds.row(i));
+    let (near, far) = rows.fold((f64::INFINITY, 0.0f64), |(n, f), r| (n.min(r[15]), f.max(r[16])));
+    let far_t = 1.0 - 1.0 / (1.1 * far / (near * 0.75));
+    let bounded = load_fern(&LoadOptions { load_images: false, ndc_far_bound: true, ..Default::default() }).unwrap();
+    assert_eq!(bounded.near, 0.0);
+    assert!((f64::from(bounded.far) - far_t).abs() < 1e-6 && bounded.far < 0.9, "far {} against {far_t}", bounded.far);
     assert_eq!(scene.aabb, [Vec3::new(-1.5, -1.5, -1.0), Vec3::new(1.5, 1.5, 1.0)]);
     assert!(scene.background.is_none());
     let ndc = scene.ndc.expect("LLFF scenes carry NDC parameters");

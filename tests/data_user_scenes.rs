@@ -481,6 +481,17 @@ fn forward_facing_colmap_is_the_llff_scene() {
     let b = Scene::load(dir.path(), &headers_only()).unwrap();
     assert_eq!(b.format, SceneFormat::Colmap);
     assert_eq!((b.near, b.far, b.aabb, b.ndc), (a.near, a.far, a.aabb, a.ndc));
+    assert_eq!(b.far, 1.0);
+    // With the far bound, both end at 1.1 times the farthest far bound, as an NDC ray
+    // parameter: the COLMAP model's from its points as imgs2poses would write it.
+    let bounded = LoadOptions { ndc_far_bound: true, ..headers_only() };
+    let a = Scene::load(llff.path(), &LoadOptions { llff_factor: Some(1), ..bounded.clone() }).unwrap();
+    let b = Scene::load(dir.path(), &bounded).unwrap();
+    let bound = |col: usize| rows.chunks(17).map(move |r| r[col]);
+    let (near, far) = (bound(15).fold(f64::INFINITY, f64::min), bound(16).fold(0.0, f64::max));
+    let far_t = 1.0 - 1.0 / (1.1 * far / (near * 0.75));
+    assert!((f64::from(b.far) - far_t).abs() < 1e-5 && b.far < 1.0, "far {} against {far_t}", b.far);
+    assert_eq!(a.far, b.far);
     assert_eq!(a.split, b.split);
     for v in 0..5 {
         for (ra, rb) in a.image_rays(v).iter().zip(&b.image_rays(v)) {
@@ -631,10 +642,19 @@ fn bad_colmap_and_nerfstudio_inputs_are_clear_errors() {
     std::fs::write(ff.path().join("transforms.json"), t.to_string()).unwrap();
     let msg = load_err(ff.path());
     assert!(msg.contains("forward-facing") && msg.contains("\"near\""), "{msg}");
-    // The near key is enough: an NDC scene.
+    // The near key is enough: an NDC scene, its rays to infinity.
     let t = json!({"fl_x": 8.0, "near": 0.5, "frames": [{"file_path": "a.png", "transform_matrix": pose}]});
     std::fs::write(ff.path().join("transforms.json"), t.to_string()).unwrap();
-    assert!(Scene::load(ff.path(), &headers_only()).unwrap().ndc.is_some());
+    let scene = Scene::load(ff.path(), &headers_only()).unwrap();
+    assert!(scene.ndc.is_some() && scene.far == 1.0, "{}", scene.far);
+    let bounded = LoadOptions { ndc_far_bound: true, ..headers_only() };
+    assert_eq!(Scene::load(ff.path(), &bounded).unwrap().far, 1.0, "no far bound to end at");
+    // With a far key and the far bound they end at 1.1 times it: 4 rescaled by 1 / (0.5 * 0.75).
+    let t = json!({"fl_x": 8.0, "near": 0.5, "far": 4.0, "frames": [{"file_path": "a.png", "transform_matrix": pose}]});
+    std::fs::write(ff.path().join("transforms.json"), t.to_string()).unwrap();
+    let far_t = 1.0 - 1.0 / (1.1 * 4.0 / (0.5 * 0.75));
+    assert!((Scene::load(ff.path(), &bounded).unwrap().far - far_t).abs() < 1e-6);
+    assert_eq!(Scene::load(ff.path(), &headers_only()).unwrap().far, 1.0);
     // mask_path on some frames only.
     let t = json!({"fl_x": 8.0, "near": 0.5, "frames": [{"file_path": "a.png", "transform_matrix": pose, "mask_path": "a.png"},
                                                          {"file_path": "a.png", "transform_matrix": pose}]});

@@ -46,6 +46,7 @@ pub fn sparse_preset(format: SceneFormat, forward_facing: bool) -> Preset {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use edgenerf::render::Background;
     use edgenerf::train::RunConfig;
 
     #[test]
@@ -170,6 +171,12 @@ mod tests {
             // world-space-only stereo terms.
             let p = &c.priors;
             assert_eq!((p.stereo_depth, p.stereo_free_space, p.stereo_horizontal), (stereo, 0.0, false), "{views} views");
+            // Below 14 views rays end past the far bound onto a learned background; from
+            // 14 at infinity on black, as measured before.
+            let bounded = views < 14;
+            assert_eq!(c.scene.ndc_far_bound, bounded, "{views} views");
+            let background = if bounded { Background::Learned } else { Background::Black };
+            assert_eq!(c.render.background, background, "{views} views");
             let (lr_start, lr_end) = (c.optim.schedule.lr(100), c.optim.schedule.lr(iters));
             assert!((lr_start - lr).abs() < 1e-6, "{views} views: lr {lr_start}");
             // The preset's decay (0.7 at step 1200 and every 200 after, written for 2000

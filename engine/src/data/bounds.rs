@@ -10,8 +10,12 @@
 //!   is the 0.1 and 99.9 percentiles of the z-depths of the points it sees (what LLFF's
 //!   `imgs2poses` writes to `poses_bounds.npy`), the poses are rescaled so the closest
 //!   bound sits at 1 / 0.75 and recentred on their average ([`super::llff`]), and rays go
-//!   to NDC (near / far 0 / 1, unbounded depth). Without points the file's `near` key is
-//!   the closest bound; without either it is an error.
+//!   to NDC (near 0). Without points the file's `near` key is the closest bound; without
+//!   either it is an error. Rays end at infinity (NDC 1), or with
+//!   [`super::LoadOptions::ndc_far_bound`] at 1.1 times the farthest content
+//!   ([`super::llff::ndc_far`]): the largest per-view far bound (the 99.9-percentile
+//!   z-depth, as `imgs2poses` writes it), else the file's `far` key, else still at
+//!   infinity.
 //! * **Object-centric** otherwise: world rays in the capture's own frame and units (no
 //!   rescaling, so a COLMAP or nerfstudio export of a scene gives the rays the scene's
 //!   other formats give). With points: near = 0.9 x the smallest per-view 0.1-percentile
@@ -68,9 +72,20 @@ fn sorted(mut v: Vec<f32>) -> Vec<f32> {
     v
 }
 
-/// Per view: `(0.1-percentile z-depth, 99.9-percentile distance)` of the points that
-/// project into its frame; `None` for a view that sees none.
-fn view_ranges(cameras: &[Camera], points: &[Vec3]) -> Vec<Option<(f32, f32)>> {
+/// The depths of the points one view sees.
+#[derive(Clone, Copy)]
+struct ViewRange {
+    /// 0.1-percentile z-depth (LLFF's near bound).
+    z_near: f32,
+    /// 99.9-percentile z-depth (LLFF's far bound).
+    z_far: f32,
+    /// 99.9-percentile distance from the camera.
+    distance_far: f32,
+}
+
+/// Per view, the depths of the points that project into its frame; `None` for a view
+/// that sees none.
+fn view_ranges(cameras: &[Camera], points: &[Vec3]) -> Vec<Option<ViewRange>> {
     let stride = points.len().div_ceil(MAX_POINTS).max(1);
     cameras
         .iter()
@@ -85,7 +100,10 @@ fn view_ranges(cameras: &[Camera], points: &[Vec3]) -> Vec<Option<(f32, f32)>> {
                     dist.push(p.distance(cam.origin()));
                 }
             }
-            (!z.is_empty()).then(|| (percentile(&sorted(z), 0.1), percentile(&sorted(dist), 99.9)))
+            (!z.is_empty()).then(|| {
+                let z = sorted(z);
+                ViewRange { z_near: percentile(&z, 0.1), z_far: percentile(&z, 99.9), distance_far: percentile(&sorted(dist), 99.9) }
+            })
         })
         .collect()
 }
@@ -144,10 +162,10 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
     unique_names(root, &mut views);
     let cameras: Vec<Camera> = views.iter().map(|v| v.camera).collect();
     let ranges = view_ranges(&cameras, &points);
-    let seen: Vec<(f32, f32)> = ranges.iter().flatten().copied().collect();
+    let seen: Vec<ViewRange> = ranges.iter().flatten().copied().collect();
 
     if facing_one_way(&cameras, FORWARD_FACING_MAX_DEG) {
-        let min_near = match (seen.iter().map(|r| r.0).reduce(f32::min), near_far[0]) {
+        let min_near = match (seen.iter().map(|r| r.z_near).reduce(f32::min), near_far[0]) {
             (Some(z), _) => z,
             (None, Some(near)) => near,
             (None, None) => {
@@ -165,6 +183,7 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
         if !(min_near.is_finite() && min_near > 0.0) {
             return Err(DataError::invalid(source, format!("the closest scene depth {min_near} must be positive and finite")));
         }
+        let far_depth = seen.iter().map(|r| r.z_far).reduce(f32::max).or(near_far[1]);
         let c2w: Vec<DMat4> = cameras.iter().map(|c| c.c2w.as_dmat4()).collect();
         let (poses, sc) = normalize_forward_facing(&c2w, f64::from(min_near));
         for (view, pose) in views.iter_mut().zip(&poses) {
@@ -177,7 +196,7 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
                 depth.iter_mut().for_each(|d| *d *= sc as f32);
             }
         }
-        return Ok(ndc_scene(root, format, views, split));
+        return Ok(ndc_scene(root, format, views, split, far_depth.map(|d| f64::from(d) * sc)));
     }
 
     let (near, far, aabb) = if seen.is_empty() {
@@ -188,8 +207,8 @@ pub(super) fn finish_capture(root: &Path, format: SceneFormat, source: &Path, ca
         let far = near_far[1].unwrap_or(r + 3f32.sqrt() * h);
         (near, far, aabb.unwrap_or([centre - Vec3::splat(h), centre + Vec3::splat(h)]))
     } else {
-        let near = near_far[0].unwrap_or(0.9 * seen.iter().map(|r| r.0).fold(f32::INFINITY, f32::min));
-        let far = near_far[1].unwrap_or(1.1 * seen.iter().map(|r| r.1).fold(0.0, f32::max));
+        let near = near_far[0].unwrap_or(0.9 * seen.iter().map(|r| r.z_near).fold(f32::INFINITY, f32::min));
+        let far = near_far[1].unwrap_or(1.1 * seen.iter().map(|r| r.distance_far).fold(0.0, f32::max));
         (near, far, aabb.unwrap_or_else(|| point_box(&points)))
     };
     if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {

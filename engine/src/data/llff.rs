@@ -13,8 +13,10 @@
 //! 5. Focal length `f` is scaled by the ratio of the loaded image size to the `(h, w)`
 //!    stored in the file (per axis); the principal point is the image centre.
 //!
-//! Rays are NDC rays ([`NdcParams`] with `near = 1.0`): the scene's `near`/`far` are
-//! `0`/`1` and its `aabb` is the NDC slab `[-1.5, 1.5]^2 x [-1, 1]`: wider than the
+//! Rays are NDC rays ([`NdcParams`] with `near = 1.0`): the scene's `near` is `0`, its
+//! `far` `1` (infinity; with [`super::LoadOptions::ndc_far_bound`] the NDC ray parameter
+//! of [`NDC_FAR_MARGIN`] times the largest far bound, [`ndc_far`]), and its `aabb` is the
+//! NDC slab `[-1.5, 1.5]^2 x [-1, 1]`: wider than the
 //! NDC cube in x and y because cameras rotated off the mean axis (fern: up to ~9 deg)
 //! send border rays up to ~1.44 sideways before they reach z = 1. Images are the image files of
 //! `images_{factor}` (`images` for factor 1; [`LoadOptions::llff_factor`], the CLI's
@@ -36,6 +38,25 @@ use super::{Camera, DataError, LoadOptions, NdcParams, Scene, SceneFormat, View,
 pub(super) const BD_FACTOR: f64 = 0.75;
 /// World distance of the NDC near plane after rescaling.
 const NDC_NEAR: f32 = 1.0;
+/// With [`super::LoadOptions::ndc_far_bound`], forward-facing rays end at this multiple
+/// of the capture's farthest content depth (LLFF's largest far bound, a COLMAP model's
+/// farthest points) rather than at infinity: behind every surface the capture saw
+/// there is nothing a photograph needs, and the march there is spent on fog. The
+/// margin covers cameras off the mean plane (depths are per view, the NDC plane is the
+/// mean pose's). Val views, 3 views (2026-12-08, docs/results/fern.md, "Rays that end
+/// past the far bound"): fern at seeds 0 / 1, 1.1 against 1.5, and the kept-aside
+/// `hallway` as a nerfstudio capture.
+pub const NDC_FAR_MARGIN: f64 = 1.1;
+
+/// The NDC ray parameter at which forward-facing rays end: that of [`NDC_FAR_MARGIN`]
+/// times `far_depth`, the capture's farthest content depth in the rescaled units
+/// (`t = 1 - near / depth`); 1 (infinity) without a finite depth past the near plane.
+pub(super) fn ndc_far(far_depth: Option<f64>) -> f32 {
+    match far_depth.map(|d| d * NDC_FAR_MARGIN) {
+        Some(d) if d.is_finite() && d > f64::from(NDC_NEAR) => (1.0 - f64::from(NDC_NEAR) / d) as f32,
+        _ => 1.0,
+    }
+}
 
 /// The image folder for a downsampling factor.
 pub(crate) fn image_dir_name(factor: u32) -> String {
@@ -139,7 +160,7 @@ fn average_pose(poses: &[DMat4]) -> DMat4 {
 /// The scene's depth bounds (the smallest near and the largest far bound of
 /// `poses_bounds.npy`) in the units [`load`] gives the scene: rescaled as the camera
 /// positions are (the near bound becomes `1 / BD_FACTOR`). The loaded scene keeps
-/// only NDC's 0 / 1; NeRF's spiral path focuses between these (`super::paths`).
+/// them as NDC ray parameters; NeRF's spiral path focuses between these (`super::paths`).
 pub(super) fn world_bounds(root: &Path) -> Result<[f32; 2], DataError> {
     let path = root.join("poses_bounds.npy");
     let array = read_npy(&path)?;
@@ -214,7 +235,8 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         .iter()
         .map(|p| p.bounds[0])
         .fold(f64::INFINITY, f64::min);
-    let (poses, _) = normalize_forward_facing(&raw.iter().map(|p| p.c2w).collect::<Vec<_>>(), min_bound);
+    let (poses, sc) = normalize_forward_facing(&raw.iter().map(|p| p.c2w).collect::<Vec<_>>(), min_bound);
+    let far_bound = raw.iter().map(|p| p.bounds[1]).fold(0.0, f64::max);
 
     let mut guard = SizeGuard::default();
     let mut views = Vec::with_capacity(n);
@@ -252,7 +274,7 @@ pub(super) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     }
 
     let split = llff_split(n, opts.views).map_err(|m| DataError::invalid(root, m))?;
-    Ok(ndc_scene(root, SceneFormat::Llff, views, split))
+    Ok(ndc_scene(root, SceneFormat::Llff, views, split, Some(far_bound * sc)))
 }
 
 /// Steps 3 and 4 of the module doc on camera-to-world poses (OpenGL frame) whose
@@ -277,8 +299,10 @@ pub(super) fn normalize_forward_facing(c2w: &[DMat4], min_near: f64) -> (Vec<DMa
 }
 
 /// A forward-facing scene of normalised views ([`normalize_forward_facing`]): NDC
-/// rays from the first view's intrinsics, near/far 0/1 and the NDC slab of the module doc.
-pub(super) fn ndc_scene(root: &Path, format: SceneFormat, views: Vec<View>, split: super::Split) -> Scene {
+/// rays from the first view's intrinsics, near 0, far [`ndc_far`] of `far_depth` (the
+/// farthest content depth in the normalised units, if the capture gives one) and the
+/// NDC slab of the module doc.
+pub(super) fn ndc_scene(root: &Path, format: SceneFormat, views: Vec<View>, split: super::Split, far_depth: Option<f64>) -> Scene {
     let c0 = views[0].camera;
     Scene {
         root: root.to_path_buf(),
@@ -286,7 +310,7 @@ pub(super) fn ndc_scene(root: &Path, format: SceneFormat, views: Vec<View>, spli
         views,
         split,
         near: 0.0,
-        far: 1.0,
+        far: ndc_far(far_depth),
         ndc: Some(NdcParams {
             focal_x: c0.fx,
             focal_y: c0.fy,
@@ -296,5 +320,22 @@ pub(super) fn ndc_scene(root: &Path, format: SceneFormat, views: Vec<View>, spli
         }),
         aabb: [Vec3::new(-1.5, -1.5, -1.0), Vec3::new(1.5, 1.5, 1.0)],
         background: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rays_end_past_the_far_bound_or_at_infinity() {
+        // t = 1 - near / (1.1 depth): a far bound of 10 ends the rays at 1 - 1 / 11.
+        assert!((ndc_far(Some(10.0)) - (1.0 - 1.0 / 11.0)).abs() < 1e-7);
+        // Farther content ends them later, never past infinity.
+        assert!(ndc_far(Some(100.0)) > ndc_far(Some(10.0)) && ndc_far(Some(1e30)) <= 1.0);
+        // No bound, or none past the near plane: infinity.
+        for depth in [None, Some(0.5), Some(f64::INFINITY), Some(f64::NAN)] {
+            assert_eq!(ndc_far(depth), 1.0, "{depth:?}");
+        }
     }
 }

@@ -58,6 +58,7 @@ use std::path::{Path, PathBuf};
 
 pub use camera::{Camera, Lens, NdcParams, Ray};
 pub use error::DataError;
+pub use llff::NDC_FAR_MARGIN;
 pub use image_io::{
     ImageInfo, ImageRgb, image_info, load_depth_exr, load_mask, load_normal_exr, save_depth_exr,
     save_normal_exr,
@@ -132,11 +133,23 @@ pub struct LoadOptions {
     /// (Blender format, whose loader otherwise skips them; the other formats always hold
     /// every view): the `val` split ([`Split::unused`]). Training leaves it off.
     pub unused_views: bool,
+    /// Forward-facing (NDC) scenes: rays end just past the capture's far bound
+    /// ([`NDC_FAR_MARGIN`]) instead of at infinity (NDC `t = 1`, NeRF's). Off: a
+    /// capture's sky may lie far beyond every point it reconstructed.
+    pub ndc_far_bound: bool,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { views: None, background: [1.0, 1.0, 1.0], llff_factor: None, load_images: true, box_scale: 1.0, unused_views: false }
+        Self {
+            views: None,
+            background: [1.0, 1.0, 1.0],
+            llff_factor: None,
+            load_images: true,
+            box_scale: 1.0,
+            unused_views: false,
+            ndc_far_bound: false,
+        }
     }
 }
 
@@ -173,7 +186,8 @@ pub struct Scene {
     pub format: SceneFormat,
     pub views: Vec<View>,
     pub split: Split,
-    /// Near and far ray distances (world units), or 0/1 in NDC for LLFF.
+    /// Near and far ray distances (world units), or NDC ray parameters for
+    /// forward-facing scenes (0, and 1 for infinity; [`LoadOptions::ndc_far_bound`]).
     pub near: f32,
     pub far: f32,
     /// Present for forward-facing scenes whose rays are mapped to NDC.
@@ -198,6 +212,9 @@ impl Scene {
         }?;
         if opts.box_scale != 1.0 {
             scene.scale_box(opts.box_scale)?;
+        }
+        if !opts.ndc_far_bound && scene.ndc.is_some() {
+            scene.far = 1.0;
         }
         Ok(scene)
     }

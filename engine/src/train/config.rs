@@ -44,19 +44,29 @@ pub struct SceneConfig {
     /// the object's box ([`LoadOptions::box_scale`]). The field's resolutions are per box:
     /// scale `field.finest_resolution` and `sampler.resolution` with it to keep them.
     pub box_scale: f32,
+    /// Forward-facing (NDC) scenes: rays end at 1.1 times the capture's farthest bound
+    /// instead of at infinity ([`LoadOptions::ndc_far_bound`]; `sparse-llff.toml` below
+    /// 14 views). Leave off for a capture whose sky or distant backdrop lies beyond
+    /// every point it reconstructed.
+    pub ndc_far_bound: bool,
 }
 
 impl Default for SceneConfig {
     fn default() -> Self {
-        Self { path: PathBuf::new(), views: None, background: None, llff_factor: None, box_scale: 1.0 }
+        Self { path: PathBuf::new(), views: None, background: None, llff_factor: None, box_scale: 1.0, ndc_far_bound: false }
     }
 }
 
 impl SceneConfig {
     /// How to load the scene this config names (split, background, LLFF factor).
     pub fn load_options(&self) -> LoadOptions {
-        let mut opts =
-            LoadOptions { views: self.views, llff_factor: self.llff_factor, box_scale: self.box_scale, ..Default::default() };
+        let mut opts = LoadOptions {
+            views: self.views,
+            llff_factor: self.llff_factor,
+            box_scale: self.box_scale,
+            ndc_far_bound: self.ndc_far_bound,
+            ..Default::default()
+        };
         if let Some(bg) = self.background {
             opts.background = bg;
         }

@@ -674,7 +674,12 @@ pub fn run(args: Args, gpu_opts: &GpuOptions) -> anyhow::Result<()> {
     if let Some(bg) = &trainer.model.background {
         let c = bg.config();
         eprintln!(
-            "learned background: the training images have no alpha, so rays that leave the scene box see a learned colour {} (finest map {}x{} texels, {}; --set 'render.background={{\"kind\": \"black\"}}' for none)",
+            "learned background: {} see a learned colour {} (finest map {}x{} texels, {}; --set 'render.background={{\"kind\": \"black\"}}' for none)",
+            if trainer.scene.ndc.is_some() {
+                "rays that pass the scene's far end (forward-facing, NDC)"
+            } else {
+                "the training images have no alpha, so rays that leave the scene box"
+            },
             if c.shell_radius > 0.0 && c.shell_shape == edgenerf::render::ShellShape::Box {
                 format!("where they leave the scene box{}", if c.shell_radius == 1.0 { String::new() } else { format!(" scaled by {}", c.shell_radius) })
             } else if c.shell_radius > 0.0 {
