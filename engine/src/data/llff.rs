@@ -159,8 +159,10 @@ fn average_pose(poses: &[DMat4]) -> DMat4 {
 
 /// The scene's depth bounds (the smallest near and the largest far bound of
 /// `poses_bounds.npy`) in the units [`load`] gives the scene: rescaled as the camera
-/// positions are (the near bound becomes `1 / BD_FACTOR`). The loaded scene keeps
-/// them as NDC ray parameters; NeRF's spiral path focuses between these (`super::paths`).
+/// positions are (the near bound becomes `1 / BD_FACTOR`). The loaded scene keeps at
+/// most the far one, as the NDC ray parameter its rays end at
+/// ([`super::LoadOptions::ndc_far_bound`]); NeRF's spiral path focuses between these
+/// (`super::paths`).
 pub(super) fn world_bounds(root: &Path) -> Result<[f32; 2], DataError> {
     let path = root.join("poses_bounds.npy");
     let array = read_npy(&path)?;
